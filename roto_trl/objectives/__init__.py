@@ -1,0 +1,1 @@
+"""Self-supervised auxiliary objectives as TorchRL ``LossModule``s: see the SSL issue."""
