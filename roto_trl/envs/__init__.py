@@ -1,0 +1,7 @@
+"""RoTO tasks as batched TorchRL environments."""
+
+from roto_trl.envs.baoding import BaodingEnv
+from roto_trl.envs.bounce import BounceEnv
+from roto_trl.envs.factory import TASKS, make_env, task_config
+
+__all__ = ["TASKS", "BaodingEnv", "BounceEnv", "make_env", "task_config"]

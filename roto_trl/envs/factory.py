@@ -1,0 +1,76 @@
+"""``make_env``: the one place where a task name and overrides become a ready TorchRL env."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+from torchrl.envs import CatFrames, CatTensors, Compose, TransformedEnv
+
+from roto_trl.envs.baoding import BaodingConfig, BaodingEnv
+from roto_trl.envs.bounce import BounceConfig, BounceEnv
+from roto_trl.transforms import BinariseContacts, LastAction, ScaleProprioception
+
+# task name -> (env class, config class, joint velocity scale)
+TASKS = {
+    "bounce": (BounceEnv, BounceConfig, 0.2),
+    "baoding": (BaodingEnv, BaodingConfig, 0.2),
+}
+PROP_PARTS = ("last_action", "joint_pos", "joint_vel")
+
+
+def task_config(task: str, **overrides):
+    """The task's config with ``overrides`` applied, or a one-line error naming what is wrong."""
+    if task not in TASKS:
+        raise ValueError(f"unknown task {task!r}; choose one of {sorted(TASKS)}")
+    config_cls = TASKS[task][1]
+    valid = [f.name for f in dataclasses.fields(config_cls)]
+    unknown = sorted(set(overrides) - set(valid))
+    if unknown:
+        raise ValueError(f"unknown override(s) {unknown} for task {task!r}; valid: {valid}")
+    scales = overrides.pop("reward_scales", None)
+    config = config_cls(**overrides)
+    if scales is not None:
+        bad = sorted(set(scales) - set(config.reward_scales))
+        if bad:
+            raise ValueError(
+                f"unknown reward term(s) {bad} for task {task!r}; terms: {sorted(config.reward_scales)}"
+            )
+        config.reward_scales.update({k: float(v) for k, v in scales.items()})
+    return config
+
+
+def make_env(
+    task: str, num_envs: int, *, seed: int = 0, device: str | torch.device = "cpu", **overrides
+) -> TransformedEnv:
+    """Build a batched RoTO task with the agent's observation pipeline.
+
+    Args:
+        task: ``"bounce"`` or ``"baoding"``.
+        num_envs: worlds stepped together; the env's batch size is ``[num_envs]``.
+        seed: seed of the reset randomisation (same seed and actions give the same observations).
+        device: where the returned tensors live (physics runs on the CPU).
+        **overrides: fields of the task's config (see ``ShadowTaskConfig``), e.g.
+            ``action_ema=0.5``, ``contact_threshold=0.1``, ``reward_scales={"air": 0.0}``.
+
+    Returns:
+        A ``TransformedEnv`` whose policy inputs are ``"prop"`` (float32 ``[N, k*P]``: last action,
+        scaled joint angles and velocities, oldest reading first) and ``"tactile"`` (float32 0/1
+        ``[N, k*T]``), with ``"contact_force"``, ``"state"``, the task's episode metric and
+        ``"reward_terms"`` alongside. The base env is ``env.base_env`` (``.mj_model``).
+    """
+    if not isinstance(num_envs, int) or num_envs < 1:
+        raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+    config = task_config(task, **overrides)
+    env_cls, _, vel_scale = TASKS[task]
+    base = env_cls(num_envs, config, seed=seed, device=device)
+    return TransformedEnv(
+        base,
+        Compose(
+            LastAction(base.n_actions),
+            ScaleProprioception(base.joint_low, base.joint_high, vel_scale),
+            CatTensors(list(PROP_PARTS), out_key="prop", sort=False),
+            BinariseContacts(config.contact_threshold),
+            CatFrames(N=config.history, dim=-1, in_keys=["prop", "tactile"], padding="same"),
+        ),
+    )
