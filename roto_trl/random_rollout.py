@@ -25,7 +25,7 @@ def rollout_task(task: str, num_envs: int, steps: int, seed: int) -> dict:
     """Run ``steps`` control steps of random actions; returns throughput and episode statistics."""
     env = make_env(task, num_envs, seed=seed)
     base = env.base_env
-    metric = base.METRIC
+    metric = base.METRICS[0]
     gen = torch.Generator().manual_seed(seed)
     ep_return = torch.zeros(num_envs)
     ep_length = torch.zeros(num_envs, dtype=torch.long)

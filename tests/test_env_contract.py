@@ -6,14 +6,15 @@ from helpers import hold_pose, random_actions
 from torchrl.envs.utils import check_env_specs, step_mdp
 
 from roto_trl import TASKS, make_env
-from roto_trl.envs.shadow_hand import N_HAND_ACTUATORS, SENSOR_LINKS
 
-PROP, TACT, K = 20 + 24 + 24, len(SENSOR_LINKS), 4
+# task -> (prop per reading, tactile per reading, history k, actions): the paper's Table A1
+SIZES = {"find": (9 + 9 + 9 + 3 + 4 + 1, 2, 16, 9), "bounce": (68, 17, 4, 20), "baoding": (68, 17, 4, 20)}
 
 
 @pytest.fixture(params=sorted(TASKS))
 def env(request):
     env = make_env(request.param, 3, seed=0)
+    env.task = request.param
     yield env
     env.close()
 
@@ -23,9 +24,11 @@ def test_check_env_specs(env):
 
 
 def test_policy_inputs_shapes_and_binary_contacts(env):
+    PROP, TACT, K, A = SIZES[env.task]
+    assert env.base_env.n_actions == A
     td = env.reset()
     for _ in range(30):
-        td = env.step(td.set("action", torch.rand(3, N_HAND_ACTUATORS) * 2 - 1))["next"]
+        td = env.step(td.set("action", torch.rand(3, A) * 2 - 1))["next"]
     assert td["prop"].shape == (3, K * PROP) and td["prop"].dtype == torch.float32
     assert td["tactile"].shape == (3, K * TACT) and td["tactile"].dtype == torch.float32
     assert set(td["tactile"].unique().tolist()) <= {0.0, 1.0}
@@ -33,19 +36,20 @@ def test_policy_inputs_shapes_and_binary_contacts(env):
     # binarisation at the default threshold is exactly "any force"
     assert torch.equal(td["tactile"][:, -TACT:], (td["contact_force"] > 0).float())
     # the newest reading's last action is the action just applied, clipped
-    assert bool((td["prop"][:, -PROP:][:, :N_HAND_ACTUATORS].abs() <= 1).all())
+    assert bool((td["prop"][:, -PROP:][:, :A].abs() <= 1).all())
     assert td["state"].dtype == torch.float32 and td.get("reward_terms", None) is not None
 
 
 def test_base_env_exposes_compiled_model_and_substeps():
     env = make_env("bounce", 2, substeps=4)
     model = env.base_env.mj_model
-    assert model.nu == N_HAND_ACTUATORS
+    assert model.nu == 20
     assert model.opt.timestep == pytest.approx(1 / 240)
     env.close()
 
 
 def test_partial_reset_leaves_other_envs_untouched_and_restarts_history(env):
+    PROP, TACT, K, A = SIZES[env.task]
     td = env.reset()
     actions = random_actions(env, 6)
     for a in actions:
@@ -63,11 +67,11 @@ def test_partial_reset_leaves_other_envs_untouched_and_restarts_history(env):
     # the reset env's history holds its first reading k times, with a zero last action
     frames = out["prop"][1].view(K, PROP)
     assert torch.equal(frames, frames[:1].expand(K, -1))
-    assert torch.equal(frames[0, :N_HAND_ACTUATORS], torch.zeros(N_HAND_ACTUATORS))
+    assert torch.equal(frames[0, :A], torch.zeros(A))
     tact = out["tactile"][1].view(K, TACT)
     assert torch.equal(tact, tact[:1].expand(K, -1))
     # the kept envs still carry their previous last action
-    assert not torch.equal(out["prop"][0].view(K, PROP)[-1, :N_HAND_ACTUATORS], torch.zeros(20))
+    assert not torch.equal(out["prop"][0].view(K, PROP)[-1, :A], torch.zeros(A))
 
 
 def test_same_seed_and_actions_give_identical_observations():

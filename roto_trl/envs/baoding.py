@@ -71,7 +71,8 @@ class BaodingEnv(ShadowHandEnv):
     """Baoding on the Shadow Hand. Metric ``rotations``: complete rotations so far this episode."""
 
     SCENE = SCENE
-    METRIC = "rotations"  # the episode metric reported in every step's output
+    CONFIG = BaodingConfig
+    METRICS = ("rotations",)  # episode metrics reported in every step's output
 
     def __init__(self, num_envs: int, config: BaodingConfig | None = None, **kwargs):
         super().__init__(num_envs, config or BaodingConfig(), **kwargs)
@@ -86,7 +87,7 @@ class BaodingEnv(ShadowHandEnv):
     def _make_obs_spec(self) -> dict:
         n = self.num_envs
         return {
-            **self._hand_obs_spec(),
+            **self._robot_obs_spec(),
             "state": Unbounded(shape=(n, STATE_SIZE), dtype=torch.float32),
             "rotations": Unbounded(shape=(n, 1), dtype=torch.float32),
         }
@@ -143,7 +144,7 @@ class BaodingEnv(ShadowHandEnv):
             dim=-1,
         )
         return {
-            **self._hand_obs(reading),
+            **self._robot_obs(reading),
             "state": state.float(),
             "rotations": complete_rotations(self._swaps).float().unsqueeze(-1),
         }

@@ -8,9 +8,11 @@ keeps ``MujocoEnv``'s subclass interface where it fits (``_sample_initial_state`
 ``_prepare_ctrl``, ``_make_obs``, ``_compute_reward``, ``_compute_done``, ``_on_reset_mask``) and
 runs it over ``mujoco.rollout``.
 
-State lives in one ``[N, nstate]`` float64 array of MuJoCo's full physics state. A control step:
-``ctrl [N, nu]`` -> ``rollout(nstep=substeps)`` -> the last substep's state and the contact
-sensors of every substep -> task hooks on torch tensors. The solver warm start is zeroed at the
+State lives in one ``[N, nstate]`` float64 array of MuJoCo's full physics state, plus the
+positions of mocap bodies ``[N, nmocap, 3]`` (kinematic objects such as Find's fixed sphere: not
+part of the physics state, so they travel with the controls). A control step:
+``ctrl [N, nu]`` -> ``rollout(nstep=substeps)`` -> the last substep's state and the sensors of
+every substep -> task hooks on torch tensors. The solver warm start is zeroed at the
 start of every control step (``mujoco.rollout`` does so when given none), which makes a world's
 result independent of the thread that stepped it: same seed and actions give the same numbers.
 """
@@ -31,6 +33,7 @@ from torchrl.envs import EnvBase
 
 FULL_PHYSICS = mujoco.mjtState.mjSTATE_FULLPHYSICS.value
 CTRL = mujoco.mjtState.mjSTATE_CTRL.value
+MOCAP_POS = mujoco.mjtState.mjSTATE_MOCAP_POS.value
 
 
 def default_num_threads() -> int:
@@ -46,11 +49,13 @@ class PhysicsReading:
         qpos: ``[n, nq]`` joint positions after the last substep.
         qvel: ``[n, nv]`` joint velocities after the last substep.
         sensordata: ``[n, substeps, nsensordata]`` sensor values of every substep.
+        mocap_pos: ``[n, nmocap, 3]`` positions of the mocap bodies.
     """
 
     qpos: torch.Tensor
     qvel: torch.Tensor
     sensordata: torch.Tensor
+    mocap_pos: torch.Tensor
 
 
 class BatchedMujocoEnv(EnvBase, abc.ABC):
@@ -108,7 +113,11 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
 
         n = self.num_envs
         self._state = np.tile(self._state0, (n, 1))
-        self._ctrl = np.zeros((n, self.substeps, m.nu))
+        self._mocap0 = np.array(template.mocap_pos)
+        self._mocap_pos = np.tile(self._mocap0, (n, 1, 1))
+        # rollout's controls: ctrl, then the mocap positions when the model has mocap bodies
+        self._control_spec = CTRL | (MOCAP_POS if m.nmocap else 0)
+        self._ctrl = np.zeros((n, self.substeps, m.nu + 3 * m.nmocap))
         self._state_out = np.zeros((n, self.substeps, self.nstate))
         self._sensordata = np.zeros((n, self.substeps, m.nsensordata))
         self._step_count = torch.zeros(n, dtype=torch.long)
@@ -123,7 +132,10 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
 
     @abc.abstractmethod
     def _sample_initial_state(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Return ``(qpos [n, nq], qvel [n, nv], ctrl [n, nu])`` for the envs ``idx`` that start."""
+        """Return ``(qpos [n, nq], qvel [n, nv], ctrl [n, nu])`` for the envs ``idx`` that start.
+
+        A task with mocap bodies also writes their start positions into ``self._mocap_pos[idx]``.
+        """
 
     @abc.abstractmethod
     def _ctrl_for_state(self, idx: np.ndarray, qpos: np.ndarray) -> np.ndarray:
@@ -166,7 +178,7 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
             self._datas,
             state,
             ctrl_buf,
-            control_spec=CTRL,
+            control_spec=self._control_spec,
             skip_checks=True,
             nstep=ctrl_buf.shape[1],
             state=state_out,
@@ -175,7 +187,7 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
 
     def _physics(self, ctrl: np.ndarray) -> PhysicsReading:
         """Advance every world by one control step (``substeps`` physics steps) holding ``ctrl [N, nu]``."""
-        self._ctrl[:] = ctrl[:, None, :]
+        self._ctrl[:, :, : self.mj_model.nu] = ctrl[:, None, :]
         self._rollout(self._state, self._ctrl, self._state_out, self._sensordata)
         self._state[:] = self._state_out[:, -1]
         return self._reading()
@@ -186,11 +198,16 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
         MuJoCo computes contact forces inside a step, so this is what gives the first observation
         of an episode real contact readings (for one substep, broadcast over the reading's slots).
         """
-        n = len(idx)
+        n, nu = len(idx), self.mj_model.nu
         state = np.ascontiguousarray(self._state[idx])
+        controls = np.empty((n, 1, self._ctrl.shape[-1]))
+        controls[:, 0, :nu] = ctrl
+        controls[:, 0, nu:] = self._mocap_pos[idx].reshape(n, -1)
+        # the step after the reset holds the new mocap positions too
+        self._ctrl[idx, :, nu:] = controls[:, :, nu:]
         state_out = np.empty((n, 1, self.nstate))
         sensor_out = np.empty((n, 1, self.mj_model.nsensordata))
-        self._rollout(state, np.ascontiguousarray(ctrl[:, None, :]), state_out, sensor_out)
+        self._rollout(state, controls, state_out, sensor_out)
         self._state[idx] = state_out[:, 0]
         self._sensordata[idx] = sensor_out
 
@@ -200,6 +217,7 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
             qpos=state[:, self._qpos_slice],
             qvel=state[:, self._qvel_slice],
             sensordata=torch.from_numpy(self._sensordata),
+            mocap_pos=torch.from_numpy(self._mocap_pos),
         )
 
     # ------------------------------------------------------------------ specs
@@ -239,6 +257,7 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
         Keyword Args:
             qpos, qvel: optional ``[N, nq]`` / ``[N, nv]`` states to start from (rows of the
                 envs that do not reset are ignored); default: the task's random initial state.
+            mocap_pos: optional ``[N, nmocap, 3]`` positions of the mocap bodies, with ``qpos``.
         """
         mask = None if tensordict is None else tensordict.get("_reset", None)
         if mask is None or bool(mask.all()):
@@ -249,6 +268,8 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
             if kwargs.get("qpos") is not None:
                 qpos, qvel = self._given_state(kwargs["qpos"], kwargs.get("qvel"), idx)
                 ctrl = self._ctrl_for_state(idx, qpos)
+                if kwargs.get("mocap_pos") is not None:
+                    self._mocap_pos[idx] = self._given_mocap(kwargs["mocap_pos"], idx)
             else:
                 qpos, qvel, ctrl = self._sample_initial_state(idx)
             self._state[idx] = self._state0
@@ -276,15 +297,27 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
             )
         return tuple(torch.as_tensor(x).detach().cpu().double().numpy()[idx] for x in (qpos, qvel))
 
-    def get_state(self) -> TensorDict:
-        """A copy of the simulator state, ``qpos [N, nq]`` and ``qvel [N, nv]`` (float64).
+    def _given_mocap(self, mocap_pos: torch.Tensor, idx: np.ndarray) -> np.ndarray:
+        expected = (self.num_envs, self.mj_model.nmocap, 3)
+        if tuple(mocap_pos.shape) != expected:
+            raise ValueError(f"reset(mocap_pos=) expects shape {list(expected)}, got {list(mocap_pos.shape)}")
+        return torch.as_tensor(mocap_pos).detach().cpu().double().numpy()[idx]
 
-        Edit it and pass it back as ``env.reset(td, qpos=..., qvel=...)`` to start the envs that
-        reset (all, or those flagged in ``td["_reset"]``) from that state instead of a random one.
+    def get_state(self) -> TensorDict:
+        """A copy of the simulator state: ``qpos [N, nq]``, ``qvel [N, nv]``, ``mocap_pos [N, nmocap, 3]``.
+
+        Edit it and pass it back as ``env.reset(td, qpos=..., qvel=..., mocap_pos=...)`` to start
+        the envs that reset (all, or those flagged in ``td["_reset"]``) from that state instead of
+        a random one (float64, metres and radians).
         """
         reading = self._reading()
         return TensorDict(
-            {"qpos": reading.qpos.clone(), "qvel": reading.qvel.clone()}, batch_size=self.batch_size
+            {
+                "qpos": reading.qpos.clone(),
+                "qvel": reading.qvel.clone(),
+                "mocap_pos": reading.mocap_pos.clone(),
+            },
+            batch_size=self.batch_size,
         )
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:

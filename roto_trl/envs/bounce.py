@@ -17,13 +17,8 @@ import torch
 from torchrl.data import Unbounded
 
 from roto_trl.envs.batched_mujoco import PhysicsReading
-from roto_trl.envs.shadow_hand import (
-    N_HAND_JOINTS,
-    ShadowHandEnv,
-    ShadowTaskConfig,
-    sensor_block,
-    sensor_force,
-)
+from roto_trl.envs.robot_env import sensor_block, sensor_force
+from roto_trl.envs.shadow_hand import N_HAND_JOINTS, ShadowHandEnv, ShadowTaskConfig
 
 SCENE = "bounce.xml"
 BALL_REST = (-0.018, -0.0945, 0.336)  # where the ball settles in the cupped default pose (m)
@@ -62,7 +57,8 @@ class BounceEnv(ShadowHandEnv):
     """Bounce on the Shadow Hand. Metric ``bounces``: bounces so far in the episode."""
 
     SCENE = SCENE
-    METRIC = "bounces"  # the episode metric reported in every step's output
+    CONFIG = BounceConfig
+    METRICS = ("bounces",)  # episode metrics reported in every step's output
 
     def __init__(self, num_envs: int, config: BounceConfig | None = None, **kwargs):
         super().__init__(num_envs, config or BounceConfig(), **kwargs)
@@ -79,7 +75,7 @@ class BounceEnv(ShadowHandEnv):
     def _make_obs_spec(self) -> dict:
         n = self.num_envs
         return {
-            **self._hand_obs_spec(),
+            **self._robot_obs_spec(),
             "state": Unbounded(shape=(n, STATE_SIZE), dtype=torch.float32),
             "bounces": Unbounded(shape=(n, 1), dtype=torch.float32),
         }
@@ -129,7 +125,7 @@ class BounceEnv(ShadowHandEnv):
             dim=-1,
         )
         return {
-            **self._hand_obs(reading),
+            **self._robot_obs(reading),
             "state": state.float(),
             "bounces": self._bounces.float().unsqueeze(-1),
         }

@@ -7,23 +7,21 @@ import dataclasses
 import torch
 from torchrl.envs import CatFrames, CatTensors, Compose, TransformedEnv
 
-from roto_trl.envs.baoding import BaodingConfig, BaodingEnv
-from roto_trl.envs.bounce import BounceConfig, BounceEnv
+from roto_trl.envs.baoding import BaodingEnv
+from roto_trl.envs.bounce import BounceEnv
+from roto_trl.envs.find import FindEnv
 from roto_trl.transforms import BinariseContacts, LastAction, ScaleProprioception
 
-# task name -> (env class, config class, joint velocity scale)
-TASKS = {
-    "bounce": (BounceEnv, BounceConfig, 0.2),
-    "baoding": (BaodingEnv, BaodingConfig, 0.2),
-}
-PROP_PARTS = ("last_action", "joint_pos", "joint_vel")
+# task name -> env class (its CONFIG, SENSORS, VEL_SCALE and PROP_EXTRA say the rest)
+TASKS = {"find": FindEnv, "bounce": BounceEnv, "baoding": BaodingEnv}
+PROP_PARTS = ("last_action", "joint_pos", "joint_vel")  # then the task's PROP_EXTRA
 
 
 def task_config(task: str, **overrides):
     """The task's config with ``overrides`` applied, or a one-line error naming what is wrong."""
     if task not in TASKS:
         raise ValueError(f"unknown task {task!r}; choose one of {sorted(TASKS)}")
-    config_cls = TASKS[task][1]
+    config_cls = TASKS[task].CONFIG
     valid = [f.name for f in dataclasses.fields(config_cls)]
     unknown = sorted(set(overrides) - set(valid))
     if unknown:
@@ -46,11 +44,11 @@ def make_env(
     """Build a batched RoTO task with the agent's observation pipeline.
 
     Args:
-        task: ``"bounce"`` or ``"baoding"``.
+        task: ``"find"``, ``"bounce"`` or ``"baoding"``.
         num_envs: worlds stepped together; the env's batch size is ``[num_envs]``.
         seed: seed of the reset randomisation (same seed and actions give the same observations).
         device: where the returned tensors live (physics runs on the CPU).
-        **overrides: fields of the task's config (see ``ShadowTaskConfig``), e.g.
+        **overrides: fields of the task's config (``FindConfig``, ``ShadowTaskConfig``), e.g.
             ``action_ema=0.5``, ``contact_threshold=0.1``, ``reward_scales={"air": 0.0}``.
 
     Returns:
@@ -62,14 +60,13 @@ def make_env(
     if not isinstance(num_envs, int) or num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
     config = task_config(task, **overrides)
-    env_cls, _, vel_scale = TASKS[task]
-    base = env_cls(num_envs, config, seed=seed, device=device)
+    base = TASKS[task](num_envs, config, seed=seed, device=device)
     return TransformedEnv(
         base,
         Compose(
             LastAction(base.n_actions),
-            ScaleProprioception(base.joint_low, base.joint_high, vel_scale),
-            CatTensors(list(PROP_PARTS), out_key="prop", sort=False),
+            ScaleProprioception(base.joint_low, base.joint_high, base.VEL_SCALE),
+            CatTensors([*PROP_PARTS, *base.PROP_EXTRA], out_key="prop", sort=False),
             BinariseContacts(config.contact_threshold),
             CatFrames(N=config.history, dim=-1, in_keys=["prop", "tactile"], padding="same"),
         ),

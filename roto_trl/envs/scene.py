@@ -10,6 +10,7 @@ scene files can ``<include file="robot.xml"/>`` as if the robot's files lay besi
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Callable
 from functools import cache
 from pathlib import Path
 
@@ -20,10 +21,13 @@ from roto_trl.resources import resource_dir, resource_path
 CONTROL_HZ = 60
 CONTROL_DT = 1.0 / CONTROL_HZ
 
-# Robot folders inside gymnasium_robotics/envs/assets, by the scene files that need them.
-_ROBOT_DIRS = {"hand": ("hand", "stls/hand")}
+# Robot folders inside gymnasium_robotics/envs/assets. Each file is keyed by its path relative to
+# the folder listed, which is how the package's own XML names it (``<include file="robot.xml"/>``,
+# ``franka_assets/chain.xml``; mesh paths are relative to the ``meshdir`` the files set).
+_ROBOT_DIRS = {"hand": ("hand", "stls/hand"), "franka": ("kitchen_franka/franka_assets",)}
+_ROBOT_KEY_PREFIX = {"hand": "", "franka": "franka_assets/"}
 # Name prefix of the robot's bodies in its files.
-ROBOT_PREFIX = {"hand": "robot0:"}
+ROBOT_PREFIX = {"hand": "robot0:", "franka": "panda0_"}
 
 
 @cache
@@ -45,14 +49,23 @@ def robot_assets_dir() -> Path:
 def _robot_files(robot: str) -> dict[str, bytes]:
     files: dict[str, bytes] = {}
     for sub in _ROBOT_DIRS[robot]:
-        for path in (robot_assets_dir() / sub).iterdir():
+        root = robot_assets_dir() / sub
+        for path in root.rglob("*"):
             if path.suffix.lower() in (".xml", ".stl", ".png"):
-                files[path.name] = path.read_bytes()
+                files[_ROBOT_KEY_PREFIX[robot] + path.relative_to(root).as_posix()] = path.read_bytes()
     return files
 
 
-def load_scene(scene_file: str, robot: str, substeps: int) -> mujoco.MjModel:
+def load_scene(
+    scene_file: str,
+    robot: str,
+    substeps: int,
+    edit: Callable[[mujoco.MjSpec], None] | None = None,
+) -> mujoco.MjModel:
     """Compile ``assets/<scene_file>`` with the robot's files, at ``substeps`` per 60 Hz step.
+
+    ``edit(spec)``, when given, changes the parsed spec before it is compiled: the way to add
+    bodies inside the robot's own bodies, which our XML cannot reach (Find's finger pads).
 
     The robot's links are gravity-compensated (``gravcomp = 1``): Isaac Lab's robot configs, on
     which the paper ran, disable gravity on the robot links, and without it the Shadow Hand's
@@ -72,6 +85,8 @@ def load_scene(scene_file: str, robot: str, substeps: int) -> mujoco.MjModel:
     for body in spec.bodies:
         if body.name.startswith(ROBOT_PREFIX[robot]):
             body.gravcomp = 1.0
+    if edit is not None:
+        edit(spec)
     model = spec.compile()
     model.opt.timestep = CONTROL_DT / int(substeps)
     return model

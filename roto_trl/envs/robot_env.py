@@ -1,0 +1,238 @@
+"""What every RoTO task shares: a joint-position-controlled robot with contact sensors.
+
+A task subclasses ``RobotTaskEnv`` and declares, as class attributes, its scene file, robot, tactile
+sensor names, default pose and episode metrics; this class maps actions to joint targets, reads
+joint angles, velocities and contact forces, and holds the settings common to every task
+(``TaskConfig``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import mujoco
+import numpy as np
+import torch
+from torchrl.data import Unbounded
+
+from roto_trl.envs.batched_mujoco import BatchedMujocoEnv, PhysicsReading
+from roto_trl.envs.rendering import SceneRenderer
+from roto_trl.envs.scene import load_scene
+
+
+@dataclass
+class TaskConfig:
+    """Settings every task has; each field can be overridden in ``make_env``.
+
+    Attributes:
+        substeps: physics steps per 60 Hz control step (timestep = 1 / (60 * substeps)).
+        episode_steps: control steps before truncation.
+        action_ema: smoothing of the joint targets, target <- ema * new + (1 - ema) * old
+            (1.0 = none).
+        contact_threshold: force in newtons above which a sensor reads 1 (0 = any contact).
+        history: number of readings stacked in the policy inputs.
+        num_threads: physics worker threads (None: every core this process may use).
+        reward_scales: scale of each named reward term.
+    """
+
+    substeps: int = 2
+    episode_steps: int = 600
+    action_ema: float = 1.0
+    contact_threshold: float = 0.0
+    history: int = 4
+    num_threads: int | None = None
+    reward_scales: dict[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.action_ema <= 1.0:
+            raise ValueError(f"action_ema must be in (0, 1], got {self.action_ema}")
+        if int(self.history) < 1:
+            raise ValueError(f"history must be >= 1, got {self.history}")
+        if int(self.episode_steps) < 1:
+            raise ValueError(f"episode_steps must be >= 1, got {self.episode_steps}")
+
+
+def sensor_slice(m: mujoco.MjModel, name: str) -> slice:
+    """The sensordata columns of the sensor ``name``."""
+    sensor = m.sensor(name)
+    adr = int(m.sensor_adr[sensor.id])
+    return slice(adr, adr + int(m.sensor_dim[sensor.id]))
+
+
+def sensor_block(names: list[str] | tuple[str, ...], m: mujoco.MjModel) -> slice:
+    """The sensordata columns of consecutive 3-D contact-force sensors, as one slice."""
+    adr = [int(m.sensor_adr[m.sensor(name).id]) for name in names]
+    if any(int(m.sensor_dim[m.sensor(name).id]) != 3 for name in names) or adr != list(
+        range(adr[0], adr[0] + 3 * len(adr), 3)
+    ):
+        raise RuntimeError(f"sensors {names} must be consecutive 3-D force sensors in the scene")
+    return slice(adr[0], adr[0] + 3 * len(adr))
+
+
+def sensor_force(reading: PhysicsReading, block: slice) -> torch.Tensor:
+    """Largest force magnitude over the control step's substeps of the sensors in ``block``.
+
+    Returns:
+        ``[N, S]`` float32 newtons.
+    """
+    data = reading.sensordata[:, :, block]
+    force = data.reshape(*data.shape[:2], -1, 3)  # [N, substeps, S, 3]
+    return torch.linalg.vector_norm(force, dim=-1).amax(dim=1).float()
+
+
+class RobotTaskEnv(BatchedMujocoEnv):
+    """Base of the tasks: action mapping, joint and contact observations, sensor bookkeeping.
+
+    The robot's joints come first in the model and are the ones reported; each actuator drives
+    one joint to an absolute target. Observation entries (per env): ``joint_pos`` [J] rad (m for
+    slide joints), ``joint_vel`` [J], ``contact_force`` [S] N (largest net contact force on each
+    sensor over the control step's substeps, so that a contact shorter than a control step is
+    not missed), plus the task's ``state`` and episode metrics.
+
+    Class attributes a task sets:
+        SCENE: scene file in ``assets/``; ROBOT: robot files to load (``"hand"``, ``"franka"``).
+        N_JOINTS: robot joints reported; SENSORS: the tactile sensors' names in the scene, in
+            the order of the tactile vector.
+        DEFAULT_POSE: actuated joint name (without the robot's prefix) -> target at rest.
+        VEL_SCALE: factor on joint velocities in the policy input.
+        PROP_EXTRA: entries appended to the proprioception after last action, angles, velocities.
+        METRICS: episode metrics reported in every step's output.
+        CONFIG: the task's config dataclass.
+    """
+
+    SCENE: ClassVar[str]
+    ROBOT: ClassVar[str]
+    N_JOINTS: ClassVar[int]
+    SENSORS: ClassVar[tuple[str, ...]]
+    DEFAULT_POSE: ClassVar[dict[str, float]]
+    VEL_SCALE: ClassVar[float]
+    PROP_EXTRA: ClassVar[tuple[str, ...]] = ()
+    METRICS: ClassVar[tuple[str, ...]]
+    CONFIG: ClassVar[type[TaskConfig]]
+
+    def __init__(self, num_envs: int, config: TaskConfig, *, seed: int = 0, device="cpu"):
+        model = load_scene(self.SCENE, self.ROBOT, config.substeps, edit=self._edit_spec)
+        self.config = config
+        self._index_robot(model)
+        super().__init__(
+            model,
+            num_envs,
+            substeps=config.substeps,
+            max_episode_steps=config.episode_steps,
+            reward_scales=config.reward_scales,
+            seed=seed,
+            device=device,
+            num_threads=config.num_threads,
+        )
+        self._target = torch.zeros(self.num_envs, model.nu, dtype=torch.float64)
+
+    def _edit_spec(self, spec: mujoco.MjSpec) -> None:
+        """Change the parsed scene before it compiles (default: nothing)."""
+
+    def _index_robot(self, m: mujoco.MjModel) -> None:
+        names = [m.joint(j).name for j in range(m.njnt)]
+        self.joint_names = tuple(names[: self.N_JOINTS])
+        self.joint_low = torch.as_tensor(m.jnt_range[: self.N_JOINTS, 0], dtype=torch.float32)
+        self.joint_high = torch.as_tensor(m.jnt_range[: self.N_JOINTS, 1], dtype=torch.float32)
+        self._ctrl_lo = torch.as_tensor(m.actuator_ctrlrange[:, 0])
+        self._ctrl_span = torch.as_tensor(m.actuator_ctrlrange[:, 1] - m.actuator_ctrlrange[:, 0])
+        self._act_joint = np.asarray(m.actuator_trnid[:, 0])
+        if int(self._act_joint.max()) >= self.N_JOINTS:
+            raise RuntimeError(f"{self.SCENE}: an actuator drives a joint past the robot's {self.N_JOINTS}")
+        prefix = names[0][: names[0].find(":") + 1]
+        self._default_ctrl = np.array(
+            [self.DEFAULT_POSE[names[j].removeprefix(prefix)] for j in self._act_joint]
+        )
+        self._sensor_cols = sensor_block([f"touch:{name}" for name in self.SENSORS], m)
+
+    # ------------------------------------------------------------------ hooks
+
+    @property
+    def n_actions(self) -> int:
+        return self.mj_model.nu
+
+    def _robot_obs_spec(self) -> dict:
+        n = self.num_envs
+        return {
+            "joint_pos": Unbounded(shape=(n, self.N_JOINTS), dtype=torch.float32),
+            "joint_vel": Unbounded(shape=(n, self.N_JOINTS), dtype=torch.float32),
+            "contact_force": Unbounded(shape=(n, len(self.SENSORS)), dtype=torch.float32),
+        }
+
+    def _robot_obs(self, reading: PhysicsReading) -> dict[str, torch.Tensor]:
+        return {
+            "joint_pos": reading.qpos[:, : self.N_JOINTS].float(),
+            "joint_vel": reading.qvel[:, : self.N_JOINTS].float(),
+            "contact_force": sensor_force(reading, self._sensor_cols),
+        }
+
+    def _prepare_ctrl(self, action: torch.Tensor) -> np.ndarray:
+        target = self._ctrl_lo + (action.double().clamp(-1.0, 1.0) + 1.0) * 0.5 * self._ctrl_span
+        ema = self.config.action_ema
+        self._target = target if ema == 1.0 else ema * target + (1.0 - ema) * self._target
+        return self._target.numpy()
+
+    def _ctrl_for_state(self, idx: np.ndarray, qpos: np.ndarray) -> np.ndarray:
+        lo = self._ctrl_lo.numpy()
+        ctrl = np.clip(qpos[:, self._act_joint], lo, lo + self._ctrl_span.numpy())
+        self._target[idx] = torch.from_numpy(ctrl)
+        return ctrl
+
+    # ------------------------------------------------------------------ helpers for users and tests
+
+    def action_for_targets(self, targets: np.ndarray | torch.Tensor) -> torch.Tensor:
+        """The action ``[..., nu]`` in [-1, 1] whose joint targets are ``targets`` (clipped)."""
+        targets = torch.as_tensor(targets, dtype=torch.float64)
+        action = 2.0 * (targets - self._ctrl_lo) / self._ctrl_span - 1.0
+        return action.clamp(-1.0, 1.0).float()
+
+    def default_pose_action(self) -> torch.Tensor:
+        """The action ``[nu]`` that holds the task's default pose."""
+        return self.action_for_targets(self._default_ctrl)
+
+    def sensor_bodies(self) -> list[int]:
+        """Body id of each tactile sensor, in the order of the tactile vector."""
+        m = self.mj_model
+        return [int(m.sensor_objid[m.sensor(f"touch:{name}").id]) for name in self.SENSORS]
+
+    def render(
+        self,
+        env_index: int = 0,
+        *,
+        camera: str = "roto:side",
+        width: int = 640,
+        height: int = 480,
+        show_contacts: bool = True,
+    ) -> np.ndarray:
+        """An RGB frame ``[height, width, 3]`` uint8 of world ``env_index`` as it is now.
+
+        With ``show_contacts`` the links (or pads) whose sensor reads 1 in the latest step are
+        drawn lit. Offscreen; on a machine without a display set ``MUJOCO_GL=egl`` (or
+        ``osmesa``) before Python starts (see ``roto_trl.envs.rendering``).
+        """
+        if not 0 <= int(env_index) < self.num_envs:
+            raise IndexError(f"env_index {env_index} out of range for {self.num_envs} envs")
+        key = (camera, int(width), int(height))
+        if getattr(self, "_renderer_key", None) != key:
+            self.close_renderer()
+            self._renderer = SceneRenderer(self.mj_model, camera, int(width), int(height))
+            self._renderer_key = key
+        lit: list[int] = []
+        if show_contacts:
+            force = sensor_force(self._reading(), self._sensor_cols)[int(env_index)]
+            bodies = self.sensor_bodies()
+            lit = [bodies[s] for s in range(len(bodies)) if force[s] > self.config.contact_threshold]
+        i = int(env_index)
+        return self._renderer.frame(self._state[i], self._mocap_pos[i], lit)
+
+    def close_renderer(self) -> None:
+        """Free the offscreen GL context, if ``render`` made one."""
+        renderer = getattr(self, "_renderer", None)
+        if renderer is not None:
+            renderer.close()
+            self._renderer = self._renderer_key = None
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        self.close_renderer()
+        super().close(raise_if_closed=raise_if_closed)
