@@ -1,6 +1,20 @@
-"""RoTO-TRL: the Robot Tactile Olympiad on MuJoCo and TorchRL."""
+"""RoTO-TRL: the Robot Tactile Olympiad on MuJoCo and TorchRL.
 
-from roto_trl.envs import TASKS, make_env
+``import roto_trl`` registers the Gymnasium ids and nothing else; ``make_env`` and ``TASKS`` load
+the simulator on first use, so a program may still set ``MUJOCO_GL`` after importing the package.
+"""
 
-__all__ = ["TASKS", "make_env"]
+from roto_trl.registration import register_envs
+
 __version__ = "0.1.0"
+__all__ = ["TASKS", "make_env"]
+
+register_envs()  # RoTO/Find-v0, RoTO/Bounce-v0, RoTO/Baoding-v0 for gymnasium.make / make_vec
+
+
+def __getattr__(name: str):
+    if name in __all__:
+        from roto_trl.envs import factory
+
+        return getattr(factory, name)
+    raise AttributeError(f"module 'roto_trl' has no attribute {name!r}")

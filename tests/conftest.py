@@ -1,3 +1,8 @@
+import os
+
+# Offscreen rendering on a machine without a display; must precede the first import of mujoco.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
 import pytest
 import torch
 

@@ -1,0 +1,128 @@
+"""Record one episode of a task as an mp4, the active contact sensors drawn lit.
+
+    python -m roto_trl.record task=bounce                          # random actions
+    python -m roto_trl.record task=find policy=runs/<run>/checkpoints/best.pt
+    python -m roto_trl.record task=baoding seed=3 out=baoding.mp4 width=480 height=360
+
+Keys (``key=value``): ``task`` (required), ``policy`` (``random`` or a training checkpoint),
+``seed``, ``out`` (default ``runs/videos/<task>-<policy>-<time>.mp4``), ``camera``, ``width``,
+``height``, ``max_steps`` (default: the whole episode), and ``env.<field>=`` for any
+``make_env`` override. Frames are rendered offscreen; on a machine without a display this
+script uses ``MUJOCO_GL=egl`` unless ``MUJOCO_GL`` is already set.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("MUJOCO_GL", "egl")  # before mujoco is imported; see roto_trl.envs.rendering
+
+import sys
+from datetime import datetime
+from pathlib import Path
+
+import av
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import ConfigKeyError
+
+from roto_trl.envs.factory import TASKS, make_env
+
+DEFAULTS = {
+    "task": "???",
+    "policy": "random",
+    "seed": 0,
+    "out": None,
+    "camera": "roto:side",
+    "width": 640,
+    "height": 480,
+    "max_steps": None,
+    "env": {},
+}
+FPS = 60  # one frame per control step: real time
+
+
+def parse_args(argv: list[str]) -> DictConfig:
+    """``key=value`` arguments over ``DEFAULTS``, with one-line errors for unknown or missing keys."""
+    bad = [a for a in argv if "=" not in a]
+    if bad:
+        raise SystemExit(f"record: arguments are key=value, got {bad}; e.g. task=bounce policy=random")
+    cfg = OmegaConf.create(DEFAULTS)
+    OmegaConf.set_struct(cfg, True)
+    OmegaConf.set_struct(cfg.env, False)  # env.<field>: make_env checks the fields itself
+    try:
+        cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(argv))
+    except ConfigKeyError as err:
+        raise SystemExit(f"record: unknown key {err.key!r}; valid: {sorted(DEFAULTS)}") from None
+    if OmegaConf.is_missing(cfg, "task") or cfg.task not in TASKS:
+        raise SystemExit(f"record: give task=<{'|'.join(sorted(TASKS))}>")
+    return cfg
+
+
+def make_policy(spec: str, env):
+    """``random`` or a checkpoint path -> a function from the env's output tensordict to actions."""
+    n_actions = env.base_env.n_actions
+    if spec == "random":
+        gen = torch.Generator().manual_seed(0)
+        return lambda td: torch.rand(1, n_actions, generator=gen) * 2 - 1
+    from roto_trl.checkpoint import load_policy
+
+    return load_policy(Path(spec), env)
+
+
+def write_mp4(path: Path, frames: list[np.ndarray], fps: int = FPS) -> None:
+    """Encode RGB frames ``[H, W, 3]`` uint8 as H.264 in ``path``."""
+    height, width = frames[0].shape[:2]
+    with av.open(str(path), mode="w") as container:
+        stream = container.add_stream("libx264", rate=fps)
+        stream.width, stream.height = width - width % 2, height - height % 2
+        stream.pix_fmt = "yuv420p"
+        for rgb in frames:
+            frame = av.VideoFrame.from_ndarray(rgb[: stream.height, : stream.width], format="rgb24")
+            container.mux(stream.encode(frame))
+        container.mux(stream.encode())
+
+
+def record(cfg: DictConfig) -> Path:
+    """Run one episode of ``cfg.task`` with ``cfg.policy``, write it as an mp4, return its path."""
+    env = make_env(cfg.task, 1, seed=int(cfg.seed), **OmegaConf.to_container(cfg.env))
+    policy = make_policy(str(cfg.policy), env)
+    base = env.base_env
+    steps = base.max_episode_steps if cfg.max_steps is None else int(cfg.max_steps)
+    render = {"camera": cfg.camera, "width": int(cfg.width), "height": int(cfg.height)}
+    td = env.reset()
+    frames = [base.render(0, **render)]
+    ret = 0.0
+    with torch.no_grad():
+        for _ in range(steps):
+            td = env.step(td.set("action", policy(td)))["next"]
+            frames.append(base.render(0, **render))
+            ret += float(td["reward"])
+            if bool(td["done"].any()):
+                break
+    metrics = {k: td[k][0].tolist() for k in base.METRICS}
+    env.close()
+    if cfg.out is None:
+        name = "random" if cfg.policy == "random" else Path(str(cfg.policy)).stem
+        out = Path("runs") / "videos" / f"{cfg.task}-{name}-{datetime.now():%Y%m%d-%H%M%S}.mp4"
+    else:
+        out = Path(str(cfg.out))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_mp4(out, frames)
+    summary = ", ".join(f"{k} {v}" for k, v in metrics.items())
+    print(f"{cfg.task}: {len(frames) - 1} steps, return {ret:.2f}, {summary}")
+    print(f"video: {out.resolve()}")
+    return out
+
+
+def main(argv: list[str] | None = None) -> Path:
+    cfg = parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        return record(cfg)
+    except (ValueError, RuntimeError, FileNotFoundError) as err:  # bad input: one line, no traceback
+        raise SystemExit(f"record: {err}") from None
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,76 @@
+"""The Gymnasium interface: registration, spaces, same-step autoreset, the env checker."""
+
+import subprocess
+import sys
+import warnings
+
+import gymnasium
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import roto_trl  # noqa: F401  (registers the ids)
+from roto_trl.gymnasium_env import RoToVectorEnv
+from roto_trl.registration import ENV_IDS
+
+
+def test_import_registers_the_ids_and_changes_nothing_else():
+    code = (
+        "import os; env = dict(os.environ); import roto_trl, gymnasium; "
+        "assert dict(os.environ) == env, 'import changed os.environ'; "
+        "assert all(i in gymnasium.registry for i in ('RoTO/Find-v0', 'RoTO/Bounce-v0', 'RoTO/Baoding-v0'))"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_make_vec_random_loop_autoresets_in_the_same_step():
+    n, length = 4, 12
+    envs = gymnasium.make_vec("RoTO/Bounce-v0", num_envs=n, episode_steps=length)
+    assert isinstance(envs.unwrapped, RoToVectorEnv)
+    assert envs.single_action_space.shape == (20,)
+    assert envs.single_observation_space["prop"].shape == (4 * 68,)
+    assert envs.single_observation_space["tactile"].shape == (4 * 17,)
+    obs, info = envs.reset(seed=0)
+    assert obs["prop"].shape == (n, 272) and obs["prop"].dtype == np.float32
+    assert info["bounces"].shape == (n,) and "reward/air" in info
+    envs.action_space.seed(0)
+    ended = 0
+    for step in range(1, 2 * length + 1):
+        obs, reward, terminated, truncated, info = envs.step(envs.action_space.sample())
+        assert envs.observation_space.contains(obs)
+        assert reward.shape == (n,) and terminated.dtype == bool
+        done = terminated | truncated
+        if step % length == 0 and not terminated.any():
+            assert truncated.all()
+        for i in np.flatnonzero(done):
+            ended += 1
+            final = info["final_obs"][i]
+            assert final["prop"].shape == (272,)
+            # the returned observation is the new episode's first: its history holds one reading
+            frames = obs["prop"][i].reshape(4, 68)
+            assert np.array_equal(frames, np.broadcast_to(frames[:1], (4, 68)))
+            assert not np.array_equal(final["prop"], obs["prop"][i])
+            assert info["final_info"][i]["bounces"] >= 0
+        for i in np.flatnonzero(~done):
+            assert "final_obs" not in info or info["final_obs"][i] is None
+    assert ended >= 2 * n
+    envs.close()
+
+
+@pytest.mark.parametrize("env_id", sorted(ENV_IDS.values()))
+def test_single_env_passes_the_gymnasium_env_checker(env_id):
+    env = gymnasium.make(env_id)
+    with warnings.catch_warnings():
+        # prop holds joint velocities: unbounded by design
+        warnings.filterwarnings("ignore", message=".*Box observation space .*infinity")
+        check_env(env.unwrapped, skip_render_check=True)
+    env.close()
+
+
+def test_find_metrics_in_info_and_bad_actions():
+    envs = gymnasium.make_vec("RoTO/Find-v0", num_envs=2)
+    _, info = envs.reset(seed=1)
+    assert info["find_time"].shape == (2, 3) and info["object_distance"].shape == (2,)
+    with pytest.raises(ValueError, match=r"actions have shape \[2, 8\], expected \[2, 9\]"):
+        envs.step(np.zeros((2, 8)))
+    envs.close()
