@@ -281,11 +281,11 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
         obs = self._make_obs(self._reading())
         obs["reward_terms"] = {k: torch.zeros(self.num_envs, 1) for k in self.reward_scales}
         zeros = torch.zeros(self.num_envs, 1, dtype=torch.bool)
-        out = TensorDict(
+        return TensorDict(
             {**obs, "done": zeros, "terminated": zeros.clone(), "truncated": zeros.clone()},
             batch_size=self.batch_size,
+            device=self.device,  # a device-less output would be cast, at a cost, by EnvBase.step
         )
-        return out.to(self.device) if self.device != torch.device("cpu") else out
 
     def _given_state(self, qpos: torch.Tensor, qvel: torch.Tensor | None, idx: np.ndarray):
         m, n = self.mj_model, self.num_envs
@@ -331,7 +331,7 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
         scaled = {k: (self.reward_scales[k] * terms[k]).to(torch.float32).reshape(-1, 1) for k in terms}
         obs["reward_terms"] = scaled
         obs["reward"] = sum(scaled.values())
-        out = TensorDict(
+        return TensorDict(
             {
                 **obs,
                 "done": terminated | truncated,
@@ -339,8 +339,8 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
                 "truncated": truncated,
             },
             batch_size=self.batch_size,
+            device=self.device,  # a device-less output would be cast, at a cost, by EnvBase.step
         )
-        return out.to(self.device) if self.device != torch.device("cpu") else out
 
     def _validated_action(self, action: torch.Tensor | None) -> torch.Tensor:
         """The action as float32 on the CPU, or a clear error; a non-finite value never passes."""
