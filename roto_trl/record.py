@@ -1,13 +1,13 @@
 """Record one episode of a task as an mp4, the active contact sensors drawn lit.
 
     python -m roto_trl.record task=bounce                          # random actions
-    python -m roto_trl.record task=find policy=runs/<run>/checkpoints/best.pt
+    python -m roto_trl.record task=find policy=runs/find_ppo/<run>/checkpoints/best.pt
     python -m roto_trl.record task=baoding seed=3 out=baoding.mp4 width=480 height=360
 
 Keys (``key=value``): ``task`` (required), ``policy`` (``random`` or a training checkpoint),
 ``seed``, ``out`` (default ``runs/videos/<task>-<policy>-<time>.mp4``), ``camera``, ``width``,
 ``height``, ``max_steps`` (default: the whole episode), and ``env.<field>=`` for any
-``make_env`` override. Frames are rendered offscreen; on a machine without a display this
+``make_env`` override (with a checkpoint, on top of the run's own settings). Frames are rendered offscreen; on a machine without a display this
 script uses ``MUJOCO_GL=egl`` unless ``MUJOCO_GL`` is already set.
 """
 
@@ -27,6 +27,8 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError
 
+from roto_trl.builders import make_task_env
+from roto_trl.checkpoint import load_checkpoint, policy_from_checkpoint
 from roto_trl.envs.factory import TASKS, make_env
 
 DEFAULTS = {
@@ -60,15 +62,25 @@ def parse_args(argv: list[str]) -> DictConfig:
     return cfg
 
 
-def make_policy(spec: str, env):
-    """``random`` or a checkpoint path -> a function from the env's output tensordict to actions."""
-    n_actions = env.base_env.n_actions
-    if spec == "random":
-        gen = torch.Generator().manual_seed(0)
-        return lambda td: torch.rand(1, n_actions, generator=gen) * 2 - 1
-    from roto_trl.checkpoint import load_policy
+def make_env_and_policy(cfg: DictConfig):
+    """The one-world env and the policy: random actions, or a checkpoint's deterministic policy.
 
-    return load_policy(Path(spec), env)
+    With a checkpoint the env is built from the run's own settings (task, overrides, inputs), so
+    the policy sees what it was trained on; ``task`` must name the same task.
+    """
+    if cfg.policy == "random":
+        env = make_env(cfg.task, 1, seed=int(cfg.seed), **OmegaConf.to_container(cfg.env))
+        gen = torch.Generator().manual_seed(int(cfg.seed))
+        n_actions = env.base_env.n_actions
+        return env, lambda td: torch.rand(1, n_actions, generator=gen) * 2 - 1
+    state = load_checkpoint(Path(str(cfg.policy)))
+    run_cfg = OmegaConf.create(state["config"])
+    if run_cfg.env.task != cfg.task:
+        raise ValueError(f"the checkpoint was trained on {run_cfg.env.task!r}, not task={cfg.task}")
+    run_cfg.device = "cpu"
+    run_cfg.env.overrides = OmegaConf.merge(run_cfg.env.overrides, cfg.env)
+    env = make_task_env(run_cfg, 1, int(cfg.seed))
+    return env, policy_from_checkpoint(state, env)
 
 
 def write_mp4(path: Path, frames: list[np.ndarray], fps: int = FPS) -> None:
@@ -86,8 +98,7 @@ def write_mp4(path: Path, frames: list[np.ndarray], fps: int = FPS) -> None:
 
 def record(cfg: DictConfig) -> Path:
     """Run one episode of ``cfg.task`` with ``cfg.policy``, write it as an mp4, return its path."""
-    env = make_env(cfg.task, 1, seed=int(cfg.seed), **OmegaConf.to_container(cfg.env))
-    policy = make_policy(str(cfg.policy), env)
+    env, policy = make_env_and_policy(cfg)
     base = env.base_env
     steps = base.max_episode_steps if cfg.max_steps is None else int(cfg.max_steps)
     render = {"camera": cfg.camera, "width": int(cfg.width), "height": int(cfg.height)}

@@ -39,7 +39,13 @@ def task_config(task: str, **overrides):
 
 
 def make_env(
-    task: str, num_envs: int, *, seed: int = 0, device: str | torch.device = "cpu", **overrides
+    task: str,
+    num_envs: int,
+    *,
+    seed: int = 0,
+    device: str | torch.device = "cpu",
+    last_action: bool = True,
+    **overrides,
 ) -> TransformedEnv:
     """Build a batched RoTO task with the agent's observation pipeline.
 
@@ -48,6 +54,8 @@ def make_env(
         num_envs: worlds stepped together; the env's batch size is ``[num_envs]``.
         seed: seed of the reset randomisation (same seed and actions give the same observations).
         device: where the returned tensors live (physics runs on the CPU).
+        last_action: put the previous action at the front of each ``prop`` reading (the paper's
+            default; ``False`` for the proprioception-without-last-action ablation).
         **overrides: fields of the task's config (``FindConfig``, ``ShadowTaskConfig``), e.g.
             ``action_ema=0.5``, ``contact_threshold=0.1``, ``reward_scales={"air": 0.0}``.
 
@@ -61,12 +69,13 @@ def make_env(
         raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
     config = task_config(task, **overrides)
     base = TASKS[task](num_envs, config, seed=seed, device=device)
+    parts = PROP_PARTS if last_action else PROP_PARTS[1:]
     return TransformedEnv(
         base,
         Compose(
-            LastAction(base.n_actions),
+            *([LastAction(base.n_actions)] if last_action else []),
             ScaleProprioception(base.joint_low, base.joint_high, base.VEL_SCALE),
-            CatTensors([*PROP_PARTS, *base.PROP_EXTRA], out_key="prop", sort=False),
+            CatTensors([*parts, *base.PROP_EXTRA], out_key="prop", sort=False),
             BinariseContacts(config.contact_threshold),
             CatFrames(N=config.history, dim=-1, in_keys=["prop", "tactile"], padding="same"),
         ),

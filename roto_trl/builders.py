@@ -1,0 +1,123 @@
+"""Config -> objects, in one place: envs, agent, PPO loss, advantage, collector, buffer, optimiser.
+
+``cfg`` is the composed Hydra config of ``roto_trl/train.py`` (``conf/train.yaml``), or the plain
+dict a checkpoint stores.
+"""
+
+from __future__ import annotations
+
+import torch
+from omegaconf import DictConfig, OmegaConf
+from torchrl.collectors import Collector
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+from torchrl.data.replay_buffers import SamplerWithoutReplacement
+from torchrl.envs import TransformedEnv
+from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives.value import GAE
+
+from roto_trl.envs.factory import make_env
+from roto_trl.modules.agent import Agent
+
+EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
+
+
+def _cfg(cfg) -> DictConfig:
+    return cfg if isinstance(cfg, DictConfig) else OmegaConf.create(cfg)
+
+
+def make_task_env(cfg, num_envs: int, seed: int) -> TransformedEnv:
+    """The run's task with its overrides, ``num_envs`` worlds."""
+    cfg = _cfg(cfg)
+    overrides = OmegaConf.to_container(cfg.env.overrides, resolve=True)
+    return make_env(
+        cfg.env.task,
+        int(num_envs),
+        seed=int(seed),
+        device=cfg.device,
+        last_action=bool(cfg.env.last_action),
+        **overrides,
+    )
+
+
+def make_train_env(cfg) -> TransformedEnv:
+    cfg = _cfg(cfg)
+    return make_task_env(cfg, cfg.env.num_envs, cfg.seed)
+
+
+def make_eval_env(cfg) -> TransformedEnv:
+    """The evaluation env: its own worlds and seed, never part of the training data."""
+    cfg = _cfg(cfg)
+    return make_task_env(cfg, cfg.eval.num_envs, cfg.seed + EVAL_SEED_OFFSET)
+
+
+def agent_for_env(cfg, env: TransformedEnv) -> Agent:
+    """The agent whose encoder reads ``cfg.env.obs_keys`` of ``env``."""
+    cfg = _cfg(cfg)
+    keys = tuple(cfg.env.obs_keys)
+    spec = env.observation_spec
+    missing = [k for k in keys if k not in spec.keys()]
+    if missing:
+        raise ValueError(f"env.obs_keys {missing} are not observations of {cfg.env.task}; use prop/tactile")
+    obs_dim = sum(int(spec[k].shape[-1]) for k in keys)
+    return Agent(keys, obs_dim, env.base_env.n_actions).to(cfg.device)
+
+
+def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
+    """TorchRL's ``ClipPPOLoss`` with the paper's clipping and scales, over the heads.
+
+    The actor and critic read ``z`` from the minibatch (``agent.encode``), so the shared encoder
+    runs once per minibatch. The value head works on the normalised scale: the loop writes
+    normalised ``value_target`` and ``state_value`` into the batch before the loss sees it.
+    """
+    a = _cfg(cfg).agent
+    return ClipPPOLoss(
+        actor_network=agent.actor_head,
+        critic_network=agent.critic_head,
+        clip_epsilon=float(a.clip_epsilon),
+        clip_value=float(a.clip_value),
+        entropy_bonus=True,
+        entropy_coeff=float(a.entropy_coeff),
+        critic_coeff=float(a.critic_coeff),
+        loss_critic_type="l2",
+        normalize_advantage=bool(a.normalize_advantage),
+        functional=False,  # the heads' own parameters: one optimiser updates them with the encoder
+    )
+
+
+def make_advantage(cfg) -> GAE:
+    """GAE over the ``state_value`` entries the loop writes (no value network of its own).
+
+    ``("next", "terminated")`` stops bootstrapping; a time-limit truncation (``done`` without
+    ``terminated``) bootstraps from the value of the episode's last observation.
+    """
+    a = _cfg(cfg).agent
+    return GAE(gamma=float(a.gamma), lmbda=float(a.lmbda), value_network=None, average_gae=False)
+
+
+def make_collector(cfg, env: TransformedEnv, agent: Agent) -> Collector:
+    """Rollouts of ``rollout_len`` steps of every training world, ``[num_envs, rollout_len]``."""
+    cfg = _cfg(cfg)
+    return Collector(
+        env,
+        agent.policy,
+        frames_per_batch=int(cfg.env.num_envs) * int(cfg.agent.rollout_len),
+        total_frames=-1,
+        device=cfg.device,
+        auto_register_policy_transforms=False,  # the policy needs no transform the env lacks
+    )
+
+
+def make_rollout_buffer(cfg) -> TensorDictReplayBuffer:
+    """The on-policy buffer: one rollout, sampled in ``minibatches`` disjoint minibatches per epoch."""
+    cfg = _cfg(cfg)
+    frames = int(cfg.env.num_envs) * int(cfg.agent.rollout_len)
+    return TensorDictReplayBuffer(
+        storage=LazyTensorStorage(frames, device=cfg.device),
+        sampler=SamplerWithoutReplacement(),
+        batch_size=frames // int(cfg.agent.minibatches),
+    )
+
+
+def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
+    """One Adam over encoder + policy + value."""
+    return torch.optim.Adam(agent.parameters(), lr=float(_cfg(cfg).agent.lr))

@@ -1,0 +1,68 @@
+"""Training checkpoints: written atomically, read back with clear errors, loaded as a policy.
+
+A checkpoint is one ``torch.save`` dict:
+    agent, optimizer   state dicts (the agent's includes the value normaliser)
+    frames, iteration  progress counters; best_eval (best evaluation return so far)
+    rng                torch, numpy and the training env's reset generator
+    config             the run's resolved config (a plain dict)
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import torch
+
+LATEST = "latest.pt"
+BEST = "best.pt"
+
+
+def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
+    """Write ``state`` to ``path`` through a temporary file, so a kill never leaves half a file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
+    """Read a checkpoint, or raise ``FileNotFoundError`` / ``ValueError`` naming the problem."""
+    path = Path(path)
+    if path.is_dir():  # a run directory: its latest checkpoint
+        path = path / "checkpoints" / LATEST
+    if not path.is_file():
+        raise FileNotFoundError(f"no checkpoint at {path} (give a run directory or a .pt file it wrote)")
+    try:
+        state = torch.load(path, map_location=map_location, weights_only=False)
+    except Exception as err:  # torch raises several types for a damaged file
+        raise ValueError(f"checkpoint {path} cannot be read ({err}); use another one") from err
+    missing = {"agent", "optimizer", "frames", "config"} - set(state)
+    if missing:
+        raise ValueError(f"{path} is not a RoTO-TRL training checkpoint (missing {sorted(missing)})")
+    return state
+
+
+def policy_from_checkpoint(state: dict[str, Any], env):
+    """The deterministic policy of a loaded checkpoint, as a function from the env's output to actions.
+
+    Build ``env`` from the checkpoint's own settings (``builders.make_task_env(state["config"],
+    ...)``); a mismatch in observations or actions is reported, not silently accepted.
+    """
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    from roto_trl.builders import agent_for_env
+
+    agent = agent_for_env(state["config"], env)
+    try:
+        agent.load_state_dict(state["agent"])
+    except RuntimeError as err:
+        raise ValueError(f"the checkpoint does not fit this env's observations/actions: {err}") from err
+    agent.eval()
+
+    def act(td):
+        with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):
+            return agent.policy(td.select(*agent.obs_keys).clone())["action"]
+
+    return act

@@ -1,0 +1,62 @@
+"""The actor-critic as TorchRL modules: a shared encoder writing ``"z"``, a policy and a value head.
+
+    agent = Agent(obs_keys=("prop", "tactile"), obs_dim=..., n_actions=...)
+    agent.policy       # obs -> z, loc, scale, action, action_log_prob   (acting, evaluation)
+    agent.value        # obs -> z, state_value (normalised scale; see ``value_norm``)
+    agent.actor_head   # z -> loc, scale, action, ...   (the PPO loss's actor)
+    agent.critic_head  # z -> state_value               (the PPO loss's critic)
+
+The losses read the latent from the minibatch (``agent.encode`` writes it, with gradients), so
+the encoder runs once per minibatch and receives every loss's gradient through the same ``z``.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict.nn import TensorDictModule
+from torch import nn
+from torchrl.modules import ActorValueOperator, IndependentNormal, ProbabilisticActor, ValueOperator
+
+from roto_trl.modules.networks import Encoder, PolicyHead, ValueHead
+from roto_trl.modules.normalization import ValueNormalizer
+
+LATENT_KEY = "z"
+
+
+class Agent(nn.Module):
+    """Everything a checkpoint holds of the agent: networks and the value normaliser.
+
+    Args:
+        obs_keys: observation entries the encoder reads, concatenated in this order.
+        obs_dim: their total size (e.g. ``k * (P + T)``).
+        n_actions: action size.
+    """
+
+    def __init__(self, obs_keys: tuple[str, ...], obs_dim: int, n_actions: int) -> None:
+        super().__init__()
+        self.obs_keys = tuple(obs_keys)
+        self.encoder = Encoder(obs_dim)
+        self.policy_head = PolicyHead(self.encoder.latent_dim, n_actions)
+        self.value_head = ValueHead(self.encoder.latent_dim)
+        self.value_norm = ValueNormalizer()
+        common = TensorDictModule(self.encoder, in_keys=list(self.obs_keys), out_keys=[LATENT_KEY])
+        self.actor_head = ProbabilisticActor(
+            TensorDictModule(self.policy_head, in_keys=[LATENT_KEY], out_keys=["loc", "scale"]),
+            in_keys=["loc", "scale"],
+            distribution_class=IndependentNormal,
+            return_log_prob=True,
+        )
+        self.critic_head = ValueOperator(self.value_head, in_keys=[LATENT_KEY])
+        self.actor_critic = ActorValueOperator(common, self.actor_head, self.critic_head)
+        self.policy = self.actor_critic.get_policy_operator()
+        self.value = self.actor_critic.get_value_operator()
+
+    def encode(self, td):
+        """Write the latent ``z`` ``[*B, 256]`` of ``td``'s observations into ``td`` (with gradients)."""
+        td.set(LATENT_KEY, self.encoder(*(td.get(k) for k in self.obs_keys)))
+        return td
+
+    @torch.no_grad()
+    def raw_value(self, td) -> torch.Tensor:
+        """State value on the return scale ``[*B, 1]`` (the value head's output denormalised)."""
+        return self.value_norm.denormalize(self.value(td.select(*self.obs_keys))["state_value"])

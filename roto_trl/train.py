@@ -1,0 +1,372 @@
+"""PPO on a RoTO task: ``python roto_trl/train.py +exp=<task>_<variant> [key=value ...]``.
+
+    python roto_trl/train.py +exp=find_ppo                         # the paper's Find PPO(prop-tactile)
+    python roto_trl/train.py +exp=bounce_ppo_prop +profile=smoke   # a real run in under two minutes
+    python roto_trl/train.py resume=runs/find_ppo/20261122-101500-s0   # continue a killed run
+
+Reads top to bottom: build the envs, the agent, the PPO loss and advantage, the collector and
+the rollout buffer; then the loop: collect a rollout of every world, estimate advantages, update,
+evaluate every ``eval.interval`` iterations, log, checkpoint. Everything of a run lands in its
+own directory: ``config.yaml``, ``train.csv``, ``eval.csv``, ``checkpoints/{latest,best}.pt``,
+``plots/`` and ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+import hydra
+import numpy as np
+import torch
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDictBase
+from tqdm import tqdm
+
+from roto_trl.builders import (
+    agent_for_env,
+    make_advantage,
+    make_collector,
+    make_eval_env,
+    make_optimizer,
+    make_ppo_loss,
+    make_rollout_buffer,
+    make_train_env,
+)
+from roto_trl.checkpoint import BEST, LATEST, load_checkpoint, save_checkpoint
+from roto_trl.evaluation import evaluate, metric_columns
+from roto_trl.loggers import BACKENDS, MetricLogger
+from roto_trl.modules.agent import Agent
+from roto_trl.plots import plot_run
+from roto_trl.resources import resource_dir
+
+EXIT_NON_FINITE = 3  # exit status of a run stopped by a NaN or inf
+
+
+class NonFiniteError(RuntimeError):
+    """A loss, gradient, parameter or return estimate became NaN or inf."""
+
+
+# ---------------------------------------------------------------------------- run setup
+
+
+def check_config(cfg: DictConfig) -> None:
+    """One-line errors for values Hydra cannot check (types and keys it checks itself)."""
+    positive = {
+        "env.num_envs": cfg.env.num_envs,
+        "eval.num_envs": cfg.eval.num_envs,
+        "eval.interval": cfg.eval.interval,
+        "total_frames": cfg.total_frames,
+        "agent.rollout_len": cfg.agent.rollout_len,
+        "agent.minibatches": cfg.agent.minibatches,
+        "agent.epochs": cfg.agent.epochs,
+    }
+    for key, value in positive.items():
+        if not isinstance(value, int) or value < 1:
+            raise ValueError(f"{key} must be a positive integer, got {value!r}")
+    if cfg.env.num_envs * cfg.agent.rollout_len < cfg.agent.minibatches:
+        raise ValueError("agent.minibatches exceeds the frames of one rollout (env.num_envs * agent.rollout_len)")
+    if not float(cfg.agent.lr) > 0:
+        raise ValueError(f"agent.lr must be > 0, got {cfg.agent.lr}")
+    if cfg.logger.backend not in BACKENDS:
+        raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
+    if str(cfg.device).startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError(f"device={cfg.device} but this machine has no CUDA device; use device=cpu")
+
+
+def prepare_run(cfg: DictConfig) -> tuple[DictConfig, Path, dict | None]:
+    """The run's config, directory and (when resuming) checkpoint.
+
+    A resumed run takes its own saved config (``<run dir>/config.yaml``), whatever else is given.
+    """
+    if cfg.resume:
+        run_dir = Path(str(cfg.resume))
+        saved = run_dir / "config.yaml"
+        if not saved.is_file():
+            raise FileNotFoundError(f"resume={run_dir}: no config.yaml there; give a run directory")
+        state = load_checkpoint(run_dir / "checkpoints" / LATEST)
+        return OmegaConf.load(saved), run_dir, state
+    if cfg.run_dir:
+        run_dir = Path(str(cfg.run_dir))
+    else:
+        run_dir = Path("runs") / cfg.exp_name / f"{datetime.now():%Y%m%d-%H%M%S}-s{cfg.seed}"
+    if (run_dir / "checkpoints" / LATEST).exists():
+        raise FileExistsError(f"{run_dir} already holds a run; continue it with resume={run_dir}")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    resolved = OmegaConf.to_container(cfg, resolve=True)
+    resolved["run_dir"], resolved["resume"] = str(run_dir), None
+    OmegaConf.save(OmegaConf.create(resolved), run_dir / "config.yaml")
+    return OmegaConf.create(resolved), run_dir, None
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed)
+    torch.manual_seed(seed)
+
+
+def rng_state(env) -> dict:
+    return {
+        "torch": torch.get_rng_state(),
+        "numpy": np.random.get_state(),
+        "python": random.getstate(),
+        "env": env.base_env.rng.bit_generator.state,
+    }
+
+
+def set_rng_state(state: dict, env) -> None:
+    torch.set_rng_state(state["torch"])
+    np.random.set_state(state["numpy"])
+    random.setstate(state["python"])
+    env.base_env.rng.bit_generator.state = state["env"]
+
+
+# ---------------------------------------------------------------------------- one PPO iteration
+
+
+@torch.no_grad()
+def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage) -> None:
+    """Write ``advantage`` and normalised ``value_target`` / ``state_value`` into ``batch`` [N, R].
+
+    Values of the rollout's observations come from the latent ``z`` the policy wrote while
+    acting (same parameters, no second encoder pass); the next observation's value is the next
+    step's, except after the last step and at episode ends, where the episode's final
+    observation is encoded. GAE runs on the return scale; the value targets are then normalised
+    with the running statistics, updated with this rollout's returns.
+    """
+    norm = agent.value_norm
+    value = norm.denormalize(agent.value_head(batch["z"]))  # [N, R, 1]
+    nxt = batch["next"]
+    next_value = torch.cat([value[:, 1:], torch.zeros_like(value[:, :1])], dim=1)
+    fresh = nxt["done"].clone()  # where next obs is not the following step's observation
+    fresh[:, -1] = True
+    where = fresh.squeeze(-1)
+    next_value[where] = agent.raw_value(nxt[where])
+    batch["state_value"] = value
+    nxt["state_value"] = next_value
+    advantage(batch)
+    target = batch["value_target"]
+    if not bool(torch.isfinite(target).all() and torch.isfinite(batch["advantage"]).all()):
+        raise NonFiniteError("the return estimate is NaN or inf: check the reward scales and the env")
+    norm.update(target)
+    batch["value_target"] = norm.normalize(target)
+    batch["state_value"] = norm.normalize(value)
+
+
+def ppo_update(cfg, buffer, agent, loss_fn, optimizer, params) -> dict[str, float]:
+    """``epochs`` passes of ``minibatches`` disjoint minibatches; returns mean loss diagnostics."""
+    sums: dict[str, float] = {}
+    steps = 0
+    for _ in range(cfg.agent.epochs):
+        for _ in range(cfg.agent.minibatches):
+            minibatch = agent.encode(buffer.sample())
+            losses = loss_fn(minibatch)
+            total = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
+            optimizer.zero_grad(set_to_none=True)
+            total.backward()
+            grad_norm = torch.nn.utils.clip_grad_norm_(params, cfg.agent.max_grad_norm)
+            if not bool(torch.isfinite(total) and torch.isfinite(grad_norm)):
+                bad = [k for k, v in losses.items() if k.startswith("loss_") and not torch.isfinite(v).all()]
+                raise NonFiniteError(f"non-finite PPO loss {bad or ['gradient']}; try a smaller agent.lr")
+            optimizer.step()
+            steps += 1
+            diag = {k: float(v.detach().mean()) for k, v in losses.items()}
+            diag["grad_norm"] = float(grad_norm)
+            for k, v in diag.items():
+                sums[k] = sums.get(k, 0.0) + v
+    if not all(bool(torch.isfinite(p).all()) for p in params):
+        raise NonFiniteError("a parameter became NaN or inf after the update; try a smaller agent.lr")
+    return {k: v / steps for k, v in sums.items()}
+
+
+def rollout_stats(batch: TensorDictBase, ep_return: torch.Tensor, columns) -> dict[str, float]:
+    """Per-step reward terms and the return and metrics of episodes that ended in ``batch``.
+
+    ``ep_return`` [N] carries each world's running return across rollouts (updated in place).
+    """
+    nxt = batch["next"]
+    reward = nxt["reward"].squeeze(-1)  # [N, R]
+    done = nxt["done"].squeeze(-1)
+    stats = {"reward": float(reward.mean())}
+    for term, value in nxt["reward_terms"].items():
+        stats[f"reward/{term}"] = float(value.mean())
+    returns = []
+    for t in range(reward.shape[1]):
+        ep_return += reward[:, t]
+        ended = done[:, t]
+        if bool(ended.any()):
+            returns.append(ep_return[ended].clone())
+            ep_return[ended] = 0.0
+    if returns:
+        ended_returns = torch.cat(returns)
+        stats["episode_return"] = float(ended_returns.mean())
+        stats["episodes"] = float(ended_returns.numel())
+        for key, i, name in columns:
+            stats[f"episode/{name}"] = float(nxt[key][..., i][done].float().mean())
+    return stats
+
+
+# ---------------------------------------------------------------------------- the run
+
+
+def train(cfg: DictConfig) -> Path:
+    """Run (or resume) PPO training as configured; returns the path of ``summary.json``."""
+    check_config(cfg)
+    cfg, run_dir, resumed = prepare_run(cfg)
+    check_config(cfg)
+    seed_everything(int(cfg.seed))
+    torch.set_num_threads(int(cfg.torch_threads) if cfg.torch_threads else len(os.sched_getaffinity(0)))
+
+    # 1. the envs: training worlds and separate evaluation worlds
+    env = make_train_env(cfg)
+    eval_env = make_eval_env(cfg)
+    eval_seed = int(cfg.seed) + 1  # the same evaluation episodes every time: comparable returns
+    columns = metric_columns(env)
+
+    # 2. the agent, PPO loss, advantage estimator and optimiser
+    agent = agent_for_env(cfg, env)
+    loss_fn = make_ppo_loss(cfg, agent)
+    advantage = make_advantage(cfg)
+    optimizer = make_optimizer(cfg, agent)
+    params = [p for group in optimizer.param_groups for p in group["params"]]
+
+    frames, iteration, best, wall_before = 0, 0, -math.inf, 0.0
+    if resumed is not None:
+        agent.load_state_dict(resumed["agent"])
+        optimizer.load_state_dict(resumed["optimizer"])
+        frames, iteration = int(resumed["frames"]), int(resumed["iteration"])
+        best, wall_before = float(resumed["best_eval"]), float(resumed.get("wall_time", 0.0))
+        set_rng_state(resumed["rng"], env)
+        print(f"resuming {run_dir} at {frames:,} frames (iteration {iteration})")
+
+    # 3. the collector and the rollout buffer
+    collector = make_collector(cfg, env, agent)
+    buffer = make_rollout_buffer(cfg)
+    logger = MetricLogger(
+        run_dir,
+        cfg.logger.backend,
+        config=OmegaConf.to_container(cfg),
+        name=run_dir.name,
+        project=cfg.logger.project,
+        resume=resumed is not None,
+    )
+    ckpt_dir = run_dir / "checkpoints"
+
+    def checkpoint(name: str, wall: float) -> None:
+        state = {
+            "agent": agent.state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "frames": frames,
+            "iteration": iteration,
+            "best_eval": best,
+            "wall_time": wall,
+            "rng": rng_state(env),
+            "config": OmegaConf.to_container(cfg),
+        }
+        save_checkpoint(ckpt_dir / name, state)
+
+    # 4. the loop
+    start = time.perf_counter()
+    last_ckpt = start
+    ep_return = torch.zeros(cfg.env.num_envs, device=cfg.device)
+    final_eval: dict[str, float] | None = None
+    best_eval: dict[str, float] | None = None
+    postfix: dict[str, str] = {}
+    bar = tqdm(
+        total=int(cfg.total_frames), initial=frames, unit="frames", unit_scale=True, disable=not cfg.progress
+    )
+    print(f"run: {run_dir.resolve()}  ({cfg.exp_name}, {cfg.env.num_envs} worlds, {cfg.total_frames:,} frames)")
+    t_collect = time.perf_counter()
+    try:
+        for batch in collector:
+            collect_s = time.perf_counter() - t_collect
+            iteration += 1
+            frames += batch.numel()
+
+            t0 = time.perf_counter()
+            estimate_advantages(batch, agent, advantage)
+            buffer.empty()
+            buffer.extend(batch.reshape(-1))
+            losses = ppo_update(cfg, buffer, agent, loss_fn, optimizer, params)
+            update_s = time.perf_counter() - t0
+
+            stats = rollout_stats(batch, ep_return, columns)
+            wall = wall_before + time.perf_counter() - start
+            stats.update(losses)
+            stats.update(
+                {
+                    "iteration": iteration,
+                    "fps": batch.numel() / (collect_s + update_s),
+                    "time/collect": collect_s,
+                    "time/update": update_s,
+                    "wall_time": wall,
+                }
+            )
+            logger.log("train", stats, frames)
+
+            done_training = frames >= cfg.total_frames
+            if iteration % cfg.eval.interval == 0 or done_training:
+                t0 = time.perf_counter()
+                final_eval = evaluate(eval_env, agent, eval_seed)
+                final_eval["time"] = time.perf_counter() - t0
+                logger.log("eval", {"iteration": iteration, **final_eval}, frames)
+                postfix["eval_return"] = f"{final_eval['return_mean']:.2f}"
+                if final_eval["return_mean"] > best:
+                    best, best_eval = final_eval["return_mean"], {"frames": frames, **final_eval}
+                    checkpoint(BEST, wall)
+            if done_training or time.perf_counter() - last_ckpt >= 60 * cfg.checkpoint.interval_minutes:
+                checkpoint(LATEST, wall)
+                last_ckpt = time.perf_counter()
+            postfix["fps"] = f"{stats['fps']:,.0f}"
+            bar.set_postfix(postfix, refresh=False)
+            bar.update(batch.numel())
+            if done_training:
+                break
+            t_collect = time.perf_counter()
+    finally:
+        bar.close()
+        collector.shutdown()
+        logger.close()
+        eval_env.close()
+
+    wall = wall_before + time.perf_counter() - start
+    summary = {
+        "exp_name": cfg.exp_name,
+        "task": cfg.env.task,
+        "seed": int(cfg.seed),
+        "frames": frames,
+        "iterations": iteration,
+        "wall_time_s": round(wall, 1),
+        "frames_per_s": round(frames / wall, 1) if wall > 0 else None,
+        "best_eval": best_eval,
+        "final_eval": final_eval,
+        "run_dir": str(run_dir.resolve()),
+    }
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
+    plots = plot_run(run_dir)
+    print(f"run directory: {run_dir.resolve()}")
+    print(f"plots: {', '.join(str(p.resolve()) for p in plots)}")
+    print(f"summary: {(run_dir / 'summary.json').resolve()}")
+    return run_dir / "summary.json"
+
+
+@hydra.main(config_path=str(resource_dir("conf")), config_name="train", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    try:
+        train(cfg)
+    except NonFiniteError as err:
+        print(f"train: stopped: {err}. The last good checkpoint is intact.", file=sys.stderr)
+        sys.exit(EXIT_NON_FINITE)
+    except (ValueError, FileNotFoundError, FileExistsError) as err:
+        print(f"train: {err}", file=sys.stderr)
+        sys.exit(2)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,158 @@
+"""PPO training through roto_trl/train.py: configs, smoke runs, determinism, resume, NaN stop."""
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
+
+from roto_trl.builders import agent_for_env, make_train_env
+from roto_trl.checkpoint import load_checkpoint
+from roto_trl.resources import resource_dir
+from roto_trl.train import EXIT_NON_FINITE, check_config, train
+
+TRAIN = [sys.executable, str(Path(__file__).resolve().parent.parent / "roto_trl" / "train.py")]
+EXPS = sorted(p.stem for p in (resource_dir("conf") / "exp").glob("*.yaml"))
+# tiny and fast on top of +profile=smoke: short episodes, few gradient steps
+TINY = [
+    "+profile=smoke",
+    "env.num_envs=8",
+    "agent.rollout_len=8",
+    "agent.minibatches=2",
+    "agent.epochs=2",
+    "total_frames=256",
+    "eval.num_envs=2",
+    "+env.overrides.episode_steps=40",
+    "progress=false",
+    "torch_threads=1",
+]
+
+
+def compose_cfg(overrides):
+    with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
+        return compose("train", overrides=overrides)
+
+
+def rows(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+@pytest.mark.parametrize("exp", EXPS)
+def test_every_experiment_composes_with_the_papers_defaults(exp):
+    cfg = compose_cfg([f"+exp={exp}"])
+    check_config(cfg)
+    task, variant = exp.split("_", 1)
+    assert cfg.env.task == task and cfg.exp_name == exp
+    assert cfg.env.num_envs == 4096
+    assert cfg.total_frames == (250_000_000 if task == "baoding" else 200_000_000)
+    assert list(cfg.env.obs_keys) == (["prop", "tactile"] if variant == "ppo" else ["prop"])
+    assert cfg.env.last_action == (not variant.endswith("nolastaction"))
+    assert cfg.logger.backend == "wandb"
+
+
+def test_obs_keys_and_last_action_set_the_encoder_input():
+    sizes = {}
+    for exp in ("find_ppo", "find_ppo_prop", "find_ppo_prop_nolastaction"):
+        cfg = compose_cfg([f"+exp={exp}", "env.num_envs=2"])
+        env = make_train_env(cfg)
+        sizes[exp] = agent_for_env(cfg, env).encoder.obs_dim
+        env.close()
+    assert sizes == {"find_ppo": 16 * 37, "find_ppo_prop": 16 * 35, "find_ppo_prop_nolastaction": 16 * 26}
+
+
+@pytest.mark.parametrize("task", ["find", "bounce", "baoding"])
+def test_smoke_run_of_each_task_writes_its_run_directory(task, tmp_path):
+    run = tmp_path / task
+    summary_path = train(compose_cfg([f"+exp={task}_ppo", *TINY, f"run_dir={run}"]))
+    summary = json.loads(summary_path.read_text())
+    assert summary["frames"] == 256 and summary["iterations"] == 4
+    assert summary["final_eval"] is not None and "return_mean" in summary["final_eval"]
+    metric = {"find": "find_time_3cm", "bounce": "bounces", "baoding": "rotations"}[task]
+    assert metric in summary["final_eval"]
+    assert [int(r["frames"]) for r in rows(run / "train.csv")] == [64, 128, 192, 256]
+    assert len(rows(run / "eval.csv")) == 2  # every 2 iterations
+    assert (run / "config.yaml").is_file() and (run / "plots" / "eval.png").is_file()
+    state = load_checkpoint(run)
+    assert state["frames"] == 256 and "value_norm.mean" in "".join(state["agent"])
+    assert (run / "checkpoints" / "best.pt").is_file()
+
+
+def test_same_seed_gives_identical_metrics(tmp_path):
+    tables = []
+    for name in ("a", "b"):
+        train(compose_cfg(["+exp=bounce_ppo", *TINY, f"run_dir={tmp_path / name}", "seed=5"]))
+        table = rows(tmp_path / name / "train.csv")
+        tables.append([{k: v for k, v in r.items() if not k.startswith(("time/", "fps", "wall"))} for r in table])
+    assert tables[0] == tables[1]
+    assert float(tables[0][0]["loss_critic"]) != 0.0
+
+
+def test_cli_rejects_bad_overrides_with_clear_errors(tmp_path):
+    bad_key = subprocess.run([*TRAIN, "+exp=find_ppo", "env.num_env=3"], capture_output=True, text=True)
+    assert bad_key.returncode != 0 and "num_env" in bad_key.stderr and "Traceback" not in bad_key.stderr
+    bad_value = subprocess.run(
+        [*TRAIN, "+exp=find_ppo", "env.num_envs=0", f"run_dir={tmp_path}"], capture_output=True, text=True
+    )
+    assert bad_value.returncode == 2
+    assert "env.num_envs must be a positive integer" in bad_value.stderr
+    bad_exp = subprocess.run([*TRAIN, "+exp=find_dqn"], capture_output=True, text=True)
+    assert bad_exp.returncode != 0 and "find_ppo" in bad_exp.stderr  # Hydra lists the options
+
+
+def test_resume_after_sigkill_continues_frames_and_optimiser(tmp_path):
+    run = tmp_path / "run"
+    args = ["+exp=find_ppo", *TINY, "total_frames=100000", f"run_dir={run}", "checkpoint.interval_minutes=0"]
+    proc = subprocess.Popen([*TRAIN, *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    latest = run / "checkpoints" / "latest.pt"
+    deadline = time.time() + 240
+    while time.time() < deadline and not latest.exists():
+        time.sleep(0.5)
+    time.sleep(1.0)  # a few more iterations
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert latest.exists(), "no checkpoint before the kill"
+    killed = load_checkpoint(run)
+    frames_at_kill = killed["frames"]
+    assert 0 < frames_at_kill < 100_000
+    adam_steps = max(int(s["step"]) for s in killed["optimizer"]["state"].values())
+
+    # finish it: the same run directory, a few iterations past the checkpoint
+    config = OmegaConf.load(run / "config.yaml")
+    config.total_frames = frames_at_kill + 128
+    OmegaConf.save(config, run / "config.yaml")
+    done = subprocess.run([*TRAIN, f"resume={run}"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert f"resuming {run}" in done.stdout
+    final = load_checkpoint(run)
+    assert final["frames"] == frames_at_kill + 128
+    assert max(int(s["step"]) for s in final["optimizer"]["state"].values()) == adam_steps + 2 * 2 * 2
+    frames = [int(r["frames"]) for r in rows(run / "train.csv")]
+    assert frames[-2:] == [frames_at_kill + 64, frames_at_kill + 128]
+    norm_before, norm_after = killed["agent"]["value_norm.count"], final["agent"]["value_norm.count"]
+    assert float(norm_after) == pytest.approx(float(norm_before) + 128)
+
+
+def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
+    run = tmp_path / "run"
+    train(compose_cfg(["+exp=find_ppo", *TINY, "total_frames=128", f"run_dir={run}"]))
+    latest = run / "checkpoints" / "latest.pt"
+    good = latest.read_bytes()
+    # the run continues with a reward that overflows: returns become inf
+    config = OmegaConf.load(run / "config.yaml")
+    config.total_frames = 1024
+    config.env.overrides.reward_scales = {"dist": float("inf")}
+    OmegaConf.save(config, run / "config.yaml")
+    stopped = subprocess.run([*TRAIN, f"resume={run}"], capture_output=True, text=True, timeout=300)
+    assert stopped.returncode == EXIT_NON_FINITE
+    assert "NaN or inf" in stopped.stderr and "last good checkpoint is intact" in stopped.stderr
+    assert latest.read_bytes() == good
+    assert torch.isfinite(torch.stack([p.float().sum() for p in load_checkpoint(run)["agent"].values()])).all()
