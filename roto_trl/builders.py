@@ -55,7 +55,7 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
     cfg = _cfg(cfg)
     keys = tuple(cfg.env.obs_keys)
     spec = env.observation_spec
-    missing = [k for k in keys if k not in spec.keys()]
+    missing = [k for k in keys if k not in spec]
     if missing:
         raise ValueError(f"env.obs_keys {missing} are not observations of {cfg.env.task}; use prop/tactile")
     obs_dim = sum(int(spec[k].shape[-1]) for k in keys)

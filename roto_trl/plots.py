@@ -7,10 +7,10 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")  # files only, no display
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from roto_trl.loggers import read_csv  # noqa: E402
+from roto_trl.loggers import read_csv
 
 SKIP = {"frames", "iteration", "return_mean", "return_std", "time"}
 

@@ -7,8 +7,9 @@
 Keys (``key=value``): ``task`` (required), ``policy`` (``random`` or a training checkpoint),
 ``seed``, ``out`` (default ``runs/videos/<task>-<policy>-<time>.mp4``), ``camera``, ``width``,
 ``height``, ``max_steps`` (default: the whole episode), and ``env.<field>=`` for any
-``make_env`` override (with a checkpoint, on top of the run's own settings). Frames are rendered offscreen; on a machine without a display this
-script uses ``MUJOCO_GL=egl`` unless ``MUJOCO_GL`` is already set.
+``make_env`` override (with a checkpoint, on top of the run's own settings). Frames are
+rendered offscreen; on a machine without a display this script uses ``MUJOCO_GL=egl`` unless
+``MUJOCO_GL`` is already set.
 """
 
 from __future__ import annotations

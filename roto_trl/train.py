@@ -14,6 +14,7 @@ own directory: ``config.yaml``, ``train.csv``, ``eval.csv``, ``checkpoints/{late
 from __future__ import annotations
 
 import json
+import logging
 import math
 import os
 import random
@@ -71,7 +72,7 @@ def check_config(cfg: DictConfig) -> None:
         if not isinstance(value, int) or value < 1:
             raise ValueError(f"{key} must be a positive integer, got {value!r}")
     if cfg.env.num_envs * cfg.agent.rollout_len < cfg.agent.minibatches:
-        raise ValueError("agent.minibatches exceeds the frames of one rollout (env.num_envs * agent.rollout_len)")
+        raise ValueError("agent.minibatches exceeds one rollout's frames (env.num_envs * agent.rollout_len)")
     if not float(cfg.agent.lr) > 0:
         raise ValueError(f"agent.lr must be > 0, got {cfg.agent.lr}")
     if cfg.logger.backend not in BACKENDS:
@@ -218,6 +219,7 @@ def rollout_stats(batch: TensorDictBase, ep_return: torch.Tensor, columns) -> di
 def train(cfg: DictConfig) -> Path:
     """Run (or resume) PPO training as configured; returns the path of ``summary.json``."""
     check_config(cfg)
+    logging.getLogger("torchrl").setLevel(logging.WARNING)  # its storage notices are not progress
     cfg, run_dir, resumed = prepare_run(cfg)
     check_config(cfg)
     seed_everything(int(cfg.seed))
@@ -281,7 +283,12 @@ def train(cfg: DictConfig) -> Path:
     bar = tqdm(
         total=int(cfg.total_frames), initial=frames, unit="frames", unit_scale=True, disable=not cfg.progress
     )
-    print(f"run: {run_dir.resolve()}  ({cfg.exp_name}, {cfg.env.num_envs} worlds, {cfg.total_frames:,} frames)")
+    size = f"{cfg.env.num_envs} worlds, {cfg.total_frames:,} frames"
+    print(f"run: {run_dir.resolve()} ({cfg.exp_name}, {size})")
+    if resumed is None:  # the untrained policy: where the learning curve starts
+        start_eval = evaluate(eval_env, agent, eval_seed)
+        logger.log("eval", {"iteration": 0, **start_eval}, 0)
+        postfix["eval_return"] = f"{start_eval['return_mean']:.2f}"
     t_collect = time.perf_counter()
     try:
         for batch in collector:
