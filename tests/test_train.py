@@ -33,6 +33,7 @@ TINY = [
     "+env.overrides.episode_steps=40",
     "progress=false",
     "torch_threads=1",
+    "logger=csv",
 ]
 
 
@@ -175,3 +176,19 @@ def test_record_plays_a_trained_checkpoint(tmp_path):
     assert out.stat().st_size > 0
     with pytest.raises(SystemExit, match="trained on 'find', not task=bounce"):
         record_main(["task=bounce", f"policy={run}/checkpoints/best.pt", f"out={out}"])
+
+
+@pytest.mark.parametrize("backend", ["wandb", "tensorboard", "csv", "none"])
+def test_logger_backends_work_offline(backend, tmp_path, monkeypatch):
+    from roto_trl.loggers import MetricLogger, read_csv
+
+    monkeypatch.setenv("WANDB_MODE", "offline")  # belt and braces: never reach for the network
+    logger = MetricLogger(tmp_path, backend, config={"seed": 0}, name="t")
+    logger.log("eval", {"return_mean": 1.5}, 100)
+    logger.log("eval", {"return_mean": 2.5}, 200)
+    logger.close()
+    assert read_csv(tmp_path / "eval.csv") == {"frames": [100.0, 200.0], "return_mean": [1.5, 2.5]}
+    if backend == "wandb":
+        assert list((tmp_path / "wandb").glob("offline-run-*"))
+    if backend == "tensorboard":
+        assert list((tmp_path / "tensorboard").glob("events.out.tfevents.*"))
