@@ -15,8 +15,16 @@ from torchrl.envs import TransformedEnv
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from roto_trl.auxiliary import AuxiliaryUpdate
 from roto_trl.envs.factory import make_env
+from roto_trl.memory import AuxMemory
 from roto_trl.modules.agent import Agent
+from roto_trl.objectives import (
+    ForwardDynamicsLoss,
+    FullReconstructionLoss,
+    TactileForwardDynamicsLoss,
+    TactileReconstructionLoss,
+)
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
 
@@ -121,3 +129,45 @@ def make_rollout_buffer(cfg) -> TensorDictReplayBuffer:
 def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     """One Adam over encoder + policy + value."""
     return torch.optim.Adam(agent.parameters(), lr=float(_cfg(cfg).agent.lr))
+
+
+SSL_OBJECTIVES = ("none", "tr", "fr", "fd", "tfd")
+
+
+def make_aux_update(cfg, agent: Agent, env: TransformedEnv) -> AuxiliaryUpdate | None:
+    """The configured self-supervised objective (``cfg.ssl``) with its optimiser and memory, or None."""
+    cfg = _cfg(cfg)
+    ssl = cfg.ssl
+    if ssl.name not in SSL_OBJECTIVES:
+        raise ValueError(f"ssl.name must be one of {list(SSL_OBJECTIVES)}, got {ssl.name!r}")
+    if ssl.name == "none":
+        return None
+    spec = env.observation_spec
+    needs_tactile = ssl.name in ("tr", "fr", "tfd")
+    if needs_tactile and "tactile" not in spec:
+        raise ValueError(f"ssl={ssl.name} reconstructs contacts but the env has no tactile observation")
+    tactile_dim = int(spec["tactile"].shape[-1]) if "tactile" in spec else 0
+    prop_dim = int(spec["prop"].shape[-1])
+    n_actions = env.base_env.n_actions
+    pos_weight = ssl.pos_weight if ssl.pos_weight == "auto" else float(ssl.pos_weight)
+    encoder = agent.common
+    if ssl.name == "tr":
+        loss = TactileReconstructionLoss(encoder, tactile_dim, pos_weight=pos_weight)
+    elif ssl.name == "fr":
+        loss = FullReconstructionLoss(encoder, prop_dim, tactile_dim, pos_weight=pos_weight)
+    elif ssl.name == "fd":
+        loss = ForwardDynamicsLoss(encoder, n_actions)
+    else:
+        loss = TactileForwardDynamicsLoss(encoder, n_actions, tactile_dim, pos_weight=pos_weight)
+    keys = tuple(dict.fromkeys([*agent.obs_keys, "prop", *(["tactile"] if tactile_dim else [])]))
+    memory = AuxMemory(int(ssl.memory_rollouts), keys, device=cfg.device)
+    batch = int(cfg.env.num_envs) * int(cfg.agent.rollout_len) // int(cfg.agent.minibatches)
+    return AuxiliaryUpdate(
+        loss.to(cfg.device),
+        memory,
+        lr=float(ssl.lr),
+        coeff=float(ssl.coeff),
+        batch=batch,
+        seq_len=int(ssl.get("seq_len", 1)),
+        tau=float(ssl.get("tau", 0.01)),
+    )

@@ -62,8 +62,11 @@ class MetricLogger:
 
             self._tb = SummaryWriter(log_dir=str(self.run_dir / "tensorboard"))
 
-    def log(self, kind: str, metrics: dict[str, float], step: int) -> None:
-        """Record ``metrics`` (scalars) of ``kind`` at ``step`` (env frames)."""
+    def log(self, kind: str, metrics: dict[str, float], step: int, *, csv_only: bool = False) -> None:
+        """Record ``metrics`` (scalars) of ``kind`` at ``step`` (env frames).
+
+        ``csv_only`` keeps fine-grained rows (one per minibatch) out of the backend.
+        """
         row = {"frames": int(step), **{k: float(v) for k, v in metrics.items()}}
         writer = self._writers.get(kind)
         if writer is None:
@@ -77,6 +80,8 @@ class MetricLogger:
             self._files[kind], self._writers[kind] = handle, writer
         writer.writerow(row)
         self._files[kind].flush()
+        if csv_only:
+            return
         finite = {f"{kind}/{k}": v for k, v in row.items() if k != "frames" and math.isfinite(v)}
         if self._wandb is not None:
             self._wandb.log(finite, step=int(step))

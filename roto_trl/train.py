@@ -33,6 +33,7 @@ from tqdm import tqdm
 from roto_trl.builders import (
     agent_for_env,
     make_advantage,
+    make_aux_update,
     make_collector,
     make_eval_env,
     make_optimizer,
@@ -41,6 +42,7 @@ from roto_trl.builders import (
     make_train_env,
 )
 from roto_trl.checkpoint import BEST, LATEST, load_checkpoint, save_checkpoint
+from roto_trl.errors import NonFiniteError
 from roto_trl.evaluation import evaluate, metric_columns
 from roto_trl.loggers import BACKENDS, MetricLogger
 from roto_trl.modules.agent import Agent
@@ -48,10 +50,6 @@ from roto_trl.plots import plot_run
 from roto_trl.resources import resource_dir
 
 EXIT_NON_FINITE = 3  # exit status of a run stopped by a NaN or inf
-
-
-class NonFiniteError(RuntimeError):
-    """A loss, gradient, parameter or return estimate became NaN or inf."""
 
 
 # ---------------------------------------------------------------------------- run setup
@@ -160,9 +158,21 @@ def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage) -> None:
     batch["state_value"] = norm.normalize(value)
 
 
-def ppo_update(cfg, buffer, agent, loss_fn, optimizer, params) -> dict[str, float]:
-    """``epochs`` passes of ``minibatches`` disjoint minibatches; returns mean loss diagnostics."""
+def ppo_update(
+    cfg, buffer, agent, loss_fn, optimizer, params, aux=None
+) -> tuple[dict[str, float], list[dict[str, float]]]:
+    """``epochs`` passes of ``minibatches`` disjoint minibatches.
+
+    Each minibatch: one PPO step (encoder + heads, gradient norm clipped), then, with an SSL
+    objective ``aux``, one auxiliary step (encoder + auxiliary networks); the encoder gets each
+    loss's gradient once.
+
+    Returns:
+        The mean PPO diagnostics (and mean auxiliary losses as ``aux/<name>``), and the numbers
+        of every auxiliary step.
+    """
     sums: dict[str, float] = {}
+    aux_rows: list[dict[str, float]] = []
     steps = 0
     for _ in range(cfg.agent.epochs):
         for _ in range(cfg.agent.minibatches):
@@ -179,11 +189,14 @@ def ppo_update(cfg, buffer, agent, loss_fn, optimizer, params) -> dict[str, floa
             steps += 1
             diag = {k: float(v.detach().mean()) for k, v in losses.items()}
             diag["grad_norm"] = float(grad_norm)
+            if aux is not None:
+                aux_rows.append(aux.step())
+                diag.update({f"aux/{k}": v for k, v in aux_rows[-1].items() if "loss" in k})
             for k, v in diag.items():
                 sums[k] = sums.get(k, 0.0) + v
     if not all(bool(torch.isfinite(p).all()) for p in params):
         raise NonFiniteError("a parameter became NaN or inf after the update; try a smaller agent.lr")
-    return {k: v / steps for k, v in sums.items()}
+    return {k: v / steps for k, v in sums.items()}, aux_rows
 
 
 def rollout_stats(batch: TensorDictBase, ep_return: torch.Tensor, columns) -> dict[str, float]:
@@ -237,6 +250,7 @@ def train(cfg: DictConfig) -> Path:
     advantage = make_advantage(cfg)
     optimizer = make_optimizer(cfg, agent)
     params = [p for group in optimizer.param_groups for p in group["params"]]
+    aux = make_aux_update(cfg, agent, env)  # the self-supervised objective, or None
 
     frames, iteration, best, wall_before = 0, 0, -math.inf, 0.0
     if resumed is not None:
@@ -245,6 +259,9 @@ def train(cfg: DictConfig) -> Path:
         frames, iteration = int(resumed["frames"]), int(resumed["iteration"])
         best, wall_before = float(resumed["best_eval"]), float(resumed.get("wall_time", 0.0))
         set_rng_state(resumed["rng"], env)
+        if aux is not None:
+            aux.loss.load_state_dict(resumed["aux"]["loss"])
+            aux.optimizer.load_state_dict(resumed["aux"]["optimizer"])
         print(f"resuming {run_dir} at {frames:,} frames (iteration {iteration})")
 
     # 3. the collector and the rollout buffer
@@ -271,6 +288,8 @@ def train(cfg: DictConfig) -> Path:
             "rng": rng_state(env),
             "config": OmegaConf.to_container(cfg),
         }
+        if aux is not None:
+            state["aux"] = {"loss": aux.loss.state_dict(), "optimizer": aux.optimizer.state_dict()}
         save_checkpoint(ckpt_dir / name, state)
 
     # 4. the loop
@@ -300,7 +319,9 @@ def train(cfg: DictConfig) -> Path:
             estimate_advantages(batch, agent, advantage)
             buffer.empty()
             buffer.extend(batch.reshape(-1))
-            losses = ppo_update(cfg, buffer, agent, loss_fn, optimizer, params)
+            if aux is not None:
+                aux.memory.add(batch)
+            losses, aux_rows = ppo_update(cfg, buffer, agent, loss_fn, optimizer, params, aux)
             update_s = time.perf_counter() - t0
 
             stats = rollout_stats(batch, ep_return, columns)
@@ -316,6 +337,8 @@ def train(cfg: DictConfig) -> Path:
                 }
             )
             logger.log("train", stats, frames)
+            for row in aux_rows:  # the auxiliary loss of every minibatch, CSV only
+                logger.log("aux", {"iteration": iteration, **row}, frames, csv_only=True)
 
             done_training = frames >= cfg.total_frames
             if iteration % cfg.eval.interval == 0 or done_training:

@@ -2,6 +2,7 @@
 
 import csv
 import json
+import math
 import os
 import signal
 import subprocess
@@ -19,13 +20,15 @@ from roto_trl.checkpoint import load_checkpoint
 from roto_trl.resources import resource_dir
 from roto_trl.train import EXIT_NON_FINITE, check_config, train
 
+FRAMES_PER_ITERATION = 8 * 16  # TINY: 8 worlds x 16 steps
 TRAIN = [sys.executable, str(Path(__file__).resolve().parent.parent / "roto_trl" / "train.py")]
 EXPS = sorted(p.stem for p in (resource_dir("conf") / "exp").glob("*.yaml"))
+assert len(EXPS) == 24  # Table A4's 21 experiments and the 3 no-last-action ablations
 # tiny and fast on top of +profile=smoke: short episodes, few gradient steps
 TINY = [
     "+profile=smoke",
     "env.num_envs=8",
-    "agent.rollout_len=8",
+    "agent.rollout_len=16",
     "agent.minibatches=2",
     "agent.epochs=2",
     "total_frames=256",
@@ -55,8 +58,13 @@ def test_every_experiment_composes_with_the_papers_defaults(exp):
     assert cfg.env.task == task and cfg.exp_name == exp
     assert cfg.env.num_envs == 4096
     assert cfg.total_frames == (250_000_000 if task == "baoding" else 200_000_000)
-    assert list(cfg.env.obs_keys) == (["prop", "tactile"] if variant == "ppo" else ["prop"])
+    prop_only = variant.startswith("ppo_prop")
+    assert list(cfg.env.obs_keys) == (["prop"] if prop_only else ["prop", "tactile"])
     assert cfg.env.last_action == (not variant.endswith("nolastaction"))
+    ssl = {"fd_mem": "fd"}.get(variant, variant if variant in ("tr", "fr", "fd", "tfd") else "none")
+    assert cfg.ssl.name == ssl
+    if variant == "fd_mem":
+        assert cfg.ssl.memory_rollouts >= 2
     assert cfg.logger.backend == "wandb"
 
 
@@ -70,21 +78,29 @@ def test_obs_keys_and_last_action_set_the_encoder_input():
     assert sizes == {"find_ppo": 16 * 37, "find_ppo_prop": 16 * 35, "find_ppo_prop_nolastaction": 16 * 26}
 
 
-@pytest.mark.parametrize("task", ["find", "bounce", "baoding"])
-def test_smoke_run_of_each_task_writes_its_run_directory(task, tmp_path):
-    run = tmp_path / task
-    summary_path = train(compose_cfg([f"+exp={task}_ppo", *TINY, f"run_dir={run}"]))
+@pytest.mark.parametrize("exp", EXPS)
+def test_smoke_run_of_every_experiment_writes_its_run_directory(exp, tmp_path):
+    task = exp.split("_")[0]
+    run = tmp_path / exp
+    summary_path = train(compose_cfg([f"+exp={exp}", *TINY, "total_frames=512", f"run_dir={run}"]))
     summary = json.loads(summary_path.read_text())
-    assert summary["frames"] == 256 and summary["iterations"] == 4
+    assert summary["frames"] == 512 and summary["iterations"] == 4
     assert summary["final_eval"] is not None and "return_mean" in summary["final_eval"]
     metric = {"find": "find_time_3cm", "bounce": "bounces", "baoding": "rotations"}[task]
     assert metric in summary["final_eval"]
-    assert [int(r["frames"]) for r in rows(run / "train.csv")] == [64, 128, 192, 256]
-    assert [int(r["frames"]) for r in rows(run / "eval.csv")] == [0, 128, 256]  # start, every 2 iterations
+    assert [int(r["frames"]) for r in rows(run / "train.csv")] == [128, 256, 384, 512]
+    assert [int(r["frames"]) for r in rows(run / "eval.csv")] == [0, 256, 512]  # start, every 2 iterations
     assert (run / "config.yaml").is_file() and (run / "plots" / "eval.png").is_file()
     state = load_checkpoint(run)
-    assert state["frames"] == 256 and "value_norm.mean" in "".join(state["agent"])
+    assert state["frames"] == 512 and "value_norm.mean" in "".join(state["agent"])
     assert (run / "checkpoints" / "best.pt").is_file()
+    cfg = OmegaConf.load(run / "config.yaml")
+    if cfg.ssl.name == "none":
+        assert not (run / "aux.csv").exists() and "aux" not in state
+    else:  # one auxiliary row per minibatch: 4 iterations x 2 epochs x 2 minibatches
+        aux = rows(run / "aux.csv")
+        assert len(aux) == 16 and all(math.isfinite(float(r["aux_loss"])) for r in aux)
+        assert "optimizer" in state["aux"]
 
 
 def test_same_seed_gives_identical_metrics(tmp_path):
@@ -129,18 +145,19 @@ def test_resume_after_sigkill_continues_frames_and_optimiser(tmp_path):
 
     # finish it: the same run directory, a few iterations past the checkpoint
     config = OmegaConf.load(run / "config.yaml")
-    config.total_frames = frames_at_kill + 128
+    config.total_frames = frames_at_kill + 2 * FRAMES_PER_ITERATION
     OmegaConf.save(config, run / "config.yaml")
     done = subprocess.run([*TRAIN, f"resume={run}"], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
     assert f"resuming {run}" in done.stdout
     final = load_checkpoint(run)
-    assert final["frames"] == frames_at_kill + 128
+    assert final["frames"] == frames_at_kill + 2 * FRAMES_PER_ITERATION
+    # 2 more iterations x 2 epochs x 2 minibatches of Adam steps, continuing the saved count
     assert max(int(s["step"]) for s in final["optimizer"]["state"].values()) == adam_steps + 2 * 2 * 2
     frames = [int(r["frames"]) for r in rows(run / "train.csv")]
-    assert frames[-2:] == [frames_at_kill + 64, frames_at_kill + 128]
+    assert frames[-2:] == [frames_at_kill + FRAMES_PER_ITERATION, frames_at_kill + 2 * FRAMES_PER_ITERATION]
     norm_before, norm_after = killed["agent"]["value_norm.count"], final["agent"]["value_norm.count"]
-    assert float(norm_after) == pytest.approx(float(norm_before) + 128)
+    assert float(norm_after) == pytest.approx(float(norm_before) + 2 * FRAMES_PER_ITERATION)
 
 
 def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
@@ -165,7 +182,7 @@ def test_record_plays_a_trained_checkpoint(tmp_path):
     from roto_trl.record import main as record_main
 
     run = tmp_path / "run"
-    train(compose_cfg(["+exp=find_ppo_prop", *TINY, "total_frames=64", f"run_dir={run}"]))
+    train(compose_cfg(["+exp=find_ppo_prop", *TINY, "total_frames=128", f"run_dir={run}"]))
     out = tmp_path / "find.mp4"
     try:
         record_main(["task=find", f"policy={run}/checkpoints/best.pt", f"out={out}", "max_steps=5"])

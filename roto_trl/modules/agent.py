@@ -39,7 +39,8 @@ class Agent(nn.Module):
         self.policy_head = PolicyHead(self.encoder.latent_dim, n_actions)
         self.value_head = ValueHead(self.encoder.latent_dim)
         self.value_norm = ValueNormalizer()
-        common = TensorDictModule(self.encoder, in_keys=list(self.obs_keys), out_keys=[LATENT_KEY])
+        # observation entries -> z: the encoder as the self-supervised losses take it
+        self.common = TensorDictModule(self.encoder, in_keys=list(self.obs_keys), out_keys=[LATENT_KEY])
         self.actor_head = ProbabilisticActor(
             TensorDictModule(self.policy_head, in_keys=[LATENT_KEY], out_keys=["loc", "scale"]),
             in_keys=["loc", "scale"],
@@ -47,7 +48,7 @@ class Agent(nn.Module):
             return_log_prob=True,
         )
         self.critic_head = ValueOperator(self.value_head, in_keys=[LATENT_KEY])
-        self.actor_critic = ActorValueOperator(common, self.actor_head, self.critic_head)
+        self.actor_critic = ActorValueOperator(self.common, self.actor_head, self.critic_head)
         self.policy = self.actor_critic.get_policy_operator()
         self.value = self.actor_critic.get_value_operator()
 

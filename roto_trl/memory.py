@@ -1,0 +1,102 @@
+"""The separated auxiliary memory: the last N_rollouts rollouts, from which SSL minibatches come.
+
+Rollouts ``[B, R]`` (B worlds, R steps) are kept FIFO in a ``TensorDictReplayBuffer`` whose
+storage holds ``[N_rollouts, B, R, ...]``; N_rollouts = 1 is exactly the current rollout. Only
+what the objectives need is stored: the observation entries (tactile as uint8, 4x smaller than
+float32), the action and the ``done`` flag of each step.
+
+Sampling:
+  - ``sample(batch)``: ``batch`` single steps, uniformly over everything stored.
+  - ``sample_sequences(batch, n)``: ``batch`` runs of n consecutive steps ``[batch, n]`` that
+    never cross an episode end: no step but the last of a run may be ``done`` (terminated or
+    truncated), since the next observation after a done step belongs to a new episode. TorchRL's
+    ``SliceSampler`` works on flat trajectory storages; this layout is indexed directly instead.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
+
+BOOL_KEYS = ("tactile",)  # 0/1 observations stored as uint8
+
+
+class AuxMemory:
+    """FIFO memory of whole rollouts for the auxiliary losses.
+
+    Args:
+        num_rollouts: N_rollouts, rollouts kept (oldest dropped first).
+        obs_keys: observation entries to keep (``prop``, ``tactile``).
+        device: where the memory lives.
+    """
+
+    def __init__(self, num_rollouts: int, obs_keys: tuple[str, ...], device="cpu") -> None:
+        if int(num_rollouts) < 1:
+            raise ValueError(f"the auxiliary memory must hold >= 1 rollout, got {num_rollouts}")
+        self.num_rollouts = int(num_rollouts)
+        self.obs_keys = tuple(obs_keys)
+        self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(self.num_rollouts, device=device))
+        self._valid: dict[int, torch.Tensor] = {}
+
+    def __len__(self) -> int:
+        return len(self.buffer)
+
+    def add(self, rollout: TensorDictBase) -> None:
+        """Store a rollout ``[B, R]`` (the collector's batch), dropping the oldest when full."""
+        keep = rollout.select(*self.obs_keys, "action")
+        for key in BOOL_KEYS:
+            if key in keep:
+                keep.set(key, keep.get(key).to(torch.uint8))
+        keep.set("done", rollout.get(("next", "done")).reshape(rollout.shape))
+        self.buffer.extend(keep.unsqueeze(0))
+        self._valid.clear()
+
+    def stored(self) -> TensorDictBase:
+        """Everything stored, ``[M, B, R]`` (M <= N_rollouts), oldest first is not guaranteed."""
+        return self.buffer.storage[: len(self.buffer)]
+
+    def nbytes(self) -> int:
+        """Bytes the stored rollouts take."""
+        return sum(t.numel() * t.element_size() for t in self.stored().values(True, True))
+
+    @staticmethod
+    def _as_float(td: TensorDictBase) -> TensorDictBase:
+        for key in BOOL_KEYS:
+            if key in td:
+                td.set(key, td.get(key).float())
+        return td
+
+    def sample(self, batch: int, generator: torch.Generator | None = None) -> TensorDictBase:
+        """``batch`` steps drawn uniformly (with replacement) over all stored steps, ``[batch]``."""
+        data = self.stored()
+        flat = data.reshape(-1)
+        idx = torch.randint(flat.shape[0], (batch,), generator=generator, device=flat.device)
+        return self._as_float(flat[idx])
+
+    def valid_starts(self, n: int) -> torch.Tensor:
+        """``[M, B, R]`` bool: a run of n steps may start here (it fits and crosses no episode end)."""
+        if n not in self._valid:
+            done = self.stored().get("done").squeeze(-1)  # [M, B, R]
+            m, b, r = done.shape
+            valid = torch.zeros(m, b, r, dtype=torch.bool, device=done.device)
+            if n <= r:
+                # done among steps t .. t+n-2: a window sum over the first n-1 steps of each run
+                csum = torch.nn.functional.pad(done.long().cumsum(-1), (1, 0))
+                crossings = csum[..., n - 1 :] - csum[..., : r - n + 2]  # [M, B, r - n + 2]
+                valid[..., : r - n + 1] = crossings[..., : r - n + 1] == 0
+            self._valid[n] = valid
+        return self._valid[n]
+
+    def sample_sequences(
+        self, batch: int, n: int, generator: torch.Generator | None = None
+    ) -> TensorDictBase:
+        """``batch`` runs of n consecutive steps of one episode each, ``[batch, n]``."""
+        starts = self.valid_starts(n).nonzero()  # [S, 3]
+        if starts.shape[0] == 0:
+            raise ValueError(f"no run of {n} steps inside one episode in memory; use a smaller n")
+        pick = starts[torch.randint(starts.shape[0], (batch,), generator=generator, device=starts.device)]
+        data = self.stored()
+        steps = pick[:, 2:3] + torch.arange(n, device=pick.device)  # [batch, n]
+        seq = data[pick[:, 0:1], pick[:, 1:2], steps]
+        return self._as_float(seq)
