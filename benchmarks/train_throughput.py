@@ -4,9 +4,11 @@ Training is ``roto_trl/train.py``'s iteration (collector with the policy acting,
 estimate, PPO update) with the paper's Baoding PPO(prop-tactile) values (R 32, mb 4, le 8) at
 1024 worlds; sim-only steps the same env with random actions through ``step_and_maybe_reset``.
 Time per iteration is split into collection (of which acting: the policy's forward passes),
-advantages and update. Goal: training >= 0.5 of sim-only.
+advantages and update. Goal: training >= 0.5 of sim-only. ``--objectives`` adds one row per
+self-supervised objective (same PPO values, the objective's defaults from ``conf/ssl/``).
 
     python benchmarks/train_throughput.py
+    python benchmarks/train_throughput.py --objectives ppo tr fr fd:2 fd:4 fd:10 tfd:2
     python benchmarks/train_throughput.py --exp find_ppo --num-envs 256 --iterations 2
 """
 
@@ -21,6 +23,7 @@ from hydra import compose, initialize_config_dir
 from roto_trl.builders import (
     agent_for_env,
     make_advantage,
+    make_aux_update,
     make_collector,
     make_optimizer,
     make_ppo_loss,
@@ -57,29 +60,20 @@ def sim_only(env, steps: int) -> float:
     return steps * n / (time.perf_counter() - start)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    parser.add_argument("--exp", default="baoding_ppo")
-    parser.add_argument("--num-envs", type=int, default=1024)
-    parser.add_argument("--iterations", type=int, default=3, help="timed iterations (after one warm-up)")
-    args = parser.parse_args()
-    overrides = [f"+exp={args.exp}", f"env.num_envs={args.num_envs}", "logger.backend=none"]
-    with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
-        cfg = compose("train", overrides=overrides)
+def measure(cfg, iterations: int) -> tuple[float, dict[str, float]]:
+    """Training steps/s over ``iterations`` (after one warm-up) and seconds per phase."""
     torch.manual_seed(0)
-    torch.set_num_threads(torch.get_num_threads())
-
     env = make_train_env(cfg)
     agent = agent_for_env(cfg, env)
     loss_fn = make_ppo_loss(cfg, agent)
     advantage = make_advantage(cfg)
     optimizer = make_optimizer(cfg, agent)
+    aux = make_aux_update(cfg, agent, env)
     params = list(agent.parameters())
     timed = TimedPolicy(agent.policy)
     collector = make_collector(cfg, env, agent)
     collector.policy = timed  # same module, timed
     buffer = make_rollout_buffer(cfg)
-
     phases = {"collect": 0.0, "acting": 0.0, "advantages": 0.0, "update": 0.0}
     frames = 0
     t_collect = time.perf_counter()
@@ -89,8 +83,10 @@ def main() -> None:
         estimate_advantages(batch, agent, advantage)
         buffer.empty()
         buffer.extend(batch.reshape(-1))
+        if aux is not None:
+            aux.memory.add(batch)
         t1 = time.perf_counter()
-        ppo_update(cfg, buffer, agent, loss_fn, optimizer, params)
+        ppo_update(cfg, buffer, agent, loss_fn, optimizer, params, aux)
         t2 = time.perf_counter()
         if i > 0:  # iteration 0 warms up
             frames += batch.numel()
@@ -99,29 +95,55 @@ def main() -> None:
             phases["advantages"] += t1 - t0
             phases["update"] += t2 - t1
         timed.seconds = 0.0
-        if i == args.iterations:
+        if i == iterations:
             break
         t_collect = time.perf_counter()
     collector.shutdown()
-    sim_env = make_train_env(cfg)
-    sim = sim_only(sim_env, int(cfg.agent.rollout_len) * 2)
-    sim_env.close()
-
+    env.close()
     total = phases["collect"] + phases["advantages"] + phases["update"]
-    train_fps = frames / total
-    a = cfg.agent
-    print(
-        f"{args.exp}: {args.num_envs} worlds, R {a.rollout_len}, mb {a.minibatches}, le {a.epochs}, "
-        f"torch threads {torch.get_num_threads()}, {frames:,} timed frames"
+    return frames / total, {k: v / iterations for k, v in phases.items()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    parser.add_argument("--exp", default="baoding_ppo")
+    parser.add_argument("--num-envs", type=int, default=1024)
+    parser.add_argument("--iterations", type=int, default=3, help="timed iterations (after one warm-up)")
+    parser.add_argument(
+        "--objectives",
+        nargs="+",
+        default=["ppo"],
+        help="rows: ppo (alone), tr, fr, fd:<n>, tfd:<n>, e.g. --objectives ppo tr fd:2 fd:4 fd:10",
     )
-    print(f"{'':<24} {'steps/s':>10}")
-    print(f"{'sim only':<24} {sim:>10,.0f}")
-    print(f"{'PPO training':<24} {train_fps:>10,.0f}   ratio {train_fps / sim:.2f}")
-    print("where a training iteration's time goes:")
-    for name in ("collect", "acting", "advantages", "update"):
-        label = "  acting (in collect)" if name == "acting" else name
-        share, per_iteration = phases[name] / total, phases[name] / args.iterations
-        print(f"  {label:<22} {share:>6.1%}  ({per_iteration:.2f} s/iteration)")
+    args = parser.parse_args()
+    base = [f"+exp={args.exp}", f"env.num_envs={args.num_envs}", "logger.backend=none"]
+    with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
+        cfg = compose("train", overrides=base)
+        sim_env = make_train_env(cfg)
+        sim = sim_only(sim_env, int(cfg.agent.rollout_len) * 2)
+        sim_env.close()
+        a = cfg.agent
+        print(
+            f"{args.exp}: {args.num_envs} worlds, R {a.rollout_len}, mb {a.minibatches}, le {a.epochs}, "
+            f"torch threads {torch.get_num_threads()}, {args.iterations} timed iterations"
+        )
+        print(f"sim only: {sim:,.0f} steps/s (random actions, same env)")
+        columns = ("steps/s", "/ sim", "collect", "acting", "adv", "update")
+        widths = (8, 6, 8, 8, 6, 8)
+        header = " ".join(f"{c:>{w}}" for c, w in zip(columns, widths, strict=True))
+        print(f"{'objective':<10} {header}   (share of an iteration; acting is part of collect)")
+        for spec in args.objectives:
+            name, _, n = spec.partition(":")
+            extra = [] if name == "ppo" else [f"ssl={name}", *([f"ssl.seq_len={n}"] if n else [])]
+            row_cfg = compose("train", overrides=[*base, *extra])
+            fps, per = measure(row_cfg, args.iterations)
+            total = per["collect"] + per["advantages"] + per["update"]
+            share = {k: v / total for k, v in per.items()}
+            print(
+                f"{spec:<10} {fps:>8,.0f} {fps / sim:>6.2f} {share['collect']:>8.1%} "
+                f"{share['acting']:>8.1%} {share['advantages']:>6.1%} {share['update']:>8.1%}",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":
