@@ -253,11 +253,13 @@ def train(cfg: DictConfig) -> Path:
     aux = make_aux_update(cfg, agent, env)  # the self-supervised objective, or None
 
     frames, iteration, best, wall_before = 0, 0, -math.inf, 0.0
+    best_eval: dict[str, float] | None = None
     if resumed is not None:
         agent.load_state_dict(resumed["agent"])
         optimizer.load_state_dict(resumed["optimizer"])
         frames, iteration = int(resumed["frames"]), int(resumed["iteration"])
         best, wall_before = float(resumed["best_eval"]), float(resumed.get("wall_time", 0.0))
+        best_eval = resumed.get("best_eval_metrics")
         set_rng_state(resumed["rng"], env)
         if aux is not None:
             aux.loss.load_state_dict(resumed["aux"]["loss"])
@@ -284,6 +286,7 @@ def train(cfg: DictConfig) -> Path:
             "frames": frames,
             "iteration": iteration,
             "best_eval": best,
+            "best_eval_metrics": best_eval,
             "wall_time": wall,
             "rng": rng_state(env),
             "config": OmegaConf.to_container(cfg),
@@ -297,7 +300,6 @@ def train(cfg: DictConfig) -> Path:
     last_ckpt = start
     ep_return = torch.zeros(cfg.env.num_envs, device=cfg.device)
     final_eval: dict[str, float] | None = None
-    best_eval: dict[str, float] | None = None
     postfix: dict[str, str] = {}
     bar = tqdm(
         total=int(cfg.total_frames), initial=frames, unit="frames", unit_scale=True, disable=not cfg.progress
