@@ -49,9 +49,15 @@ class AuxiliaryUpdate:
         self.optimizer = torch.optim.Adam(loss.parameters(), lr=float(lr))
         self.target_update = SoftUpdate(loss, tau=tau) if self.dynamics else None
 
-    def step(self) -> dict[str, float]:
-        """One auxiliary step; returns its (scaled) loss and diagnostics as floats."""
+    def step(self) -> dict[str, float] | None:
+        """One auxiliary step; returns its (scaled) loss and diagnostics as floats.
+
+        Returns None, and steps nothing, when the memory holds no run of n steps inside one
+        episode yet (episodes shorter than n, e.g. early on with few worlds).
+        """
         if self.dynamics:
+            if not bool(self.memory.valid_starts(self.seq_len).any()):
+                return None
             data = self.memory.sample_sequences(self.batch, self.seq_len)
         else:
             data = self.memory.sample(self.batch)

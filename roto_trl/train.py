@@ -189,9 +189,10 @@ def ppo_update(
             steps += 1
             diag = {k: float(v.detach().mean()) for k, v in losses.items()}
             diag["grad_norm"] = float(grad_norm)
-            if aux is not None:
-                aux_rows.append(aux.step())
-                diag.update({f"aux/{k}": v for k, v in aux_rows[-1].items() if "loss" in k})
+            aux_stats = aux.step() if aux is not None else None
+            if aux_stats is not None:
+                aux_rows.append(aux_stats)
+                diag.update({f"aux/{k}": v for k, v in aux_stats.items() if "loss" in k})
             for k, v in diag.items():
                 sums[k] = sums.get(k, 0.0) + v
     if not all(bool(torch.isfinite(p).all()) for p in params):

@@ -215,3 +215,18 @@ def test_sequences_never_cross_an_episode_end():
     assert torch.equal(steps[:, 1:] - steps[:, :-1], torch.ones(64, 2))  # consecutive steps
     with pytest.raises(ValueError, match="no run of 7 steps"):
         memory.sample_sequences(4, 7)
+
+
+def test_auxiliary_step_waits_for_runs_of_n_steps():
+    from roto_trl.auxiliary import AuxiliaryUpdate
+
+    memory = AuxMemory(1, ("prop", "tactile"))
+    memory.add(rollout(0.0, dones=[(0, 1), (0, 3), (1, 1), (1, 3)]))  # episodes of at most 2 steps
+    loss = ForwardDynamicsLoss(encoder(), A, latent_dim=8)
+    aux = AuxiliaryUpdate(loss, memory, lr=1e-3, coeff=1.0, batch=8, seq_len=3)
+    before = [p.detach().clone() for p in loss.parameters()]
+    assert aux.step() is None
+    assert all(torch.equal(a, b) for a, b in zip(before, loss.parameters(), strict=True))
+    memory.add(rollout(10.0))  # a rollout without episode ends replaces it
+    stats = aux.step()
+    assert stats is not None and math.isfinite(stats["loss_dynamics"])
