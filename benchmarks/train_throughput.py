@@ -32,7 +32,7 @@ from roto_trl.builders import (
     make_train_env,
 )
 from roto_trl.resources import resource_dir
-from roto_trl.train import estimate_advantages, ppo_update
+from roto_trl.train import ppo_update, store_rollout
 
 
 def sim_only(env, steps: int) -> float:
@@ -74,11 +74,7 @@ def measure(cfg, iterations: int) -> tuple[float, dict[str, float]]:
     for i, batch in enumerate(collector):
         collect = time.perf_counter() - t_collect
         t0 = time.perf_counter()
-        estimate_advantages(batch, agent, advantage)
-        buffer.empty()
-        buffer.extend(batch.reshape(-1))
-        if aux is not None:
-            aux.memory.add(batch)
+        store_rollout(batch, agent, advantage, buffer, aux)
         t1 = time.perf_counter()
         ppo_update(cfg, buffer, agent, loss_fn, optimizer, params, aux)
         t2 = time.perf_counter()

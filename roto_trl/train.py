@@ -158,6 +158,16 @@ def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage) -> None:
     batch["state_value"] = norm.normalize(value)
 
 
+def store_rollout(batch: TensorDictBase, agent: Agent, advantage, buffer, aux=None) -> None:
+    """Estimate advantages of the rollout ``batch`` [N, R], put it in the (emptied) rollout
+    buffer and, with an SSL objective, in the auxiliary memory."""
+    estimate_advantages(batch, agent, advantage)
+    buffer.empty()
+    buffer.extend(batch.reshape(-1))
+    if aux is not None:
+        aux.memory.add(batch)
+
+
 def ppo_update(
     cfg, buffer, agent, loss_fn, optimizer, params, aux=None
 ) -> tuple[dict[str, float], list[dict[str, float]]]:
@@ -319,11 +329,7 @@ def train(cfg: DictConfig) -> Path:
             frames += batch.numel()
 
             t0 = time.perf_counter()
-            estimate_advantages(batch, agent, advantage)
-            buffer.empty()
-            buffer.extend(batch.reshape(-1))
-            if aux is not None:
-                aux.memory.add(batch)
+            store_rollout(batch, agent, advantage, buffer, aux)
             losses, aux_rows = ppo_update(cfg, buffer, agent, loss_fn, optimizer, params, aux)
             update_s = time.perf_counter() - t0
 
