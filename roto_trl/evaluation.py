@@ -9,19 +9,6 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from roto_trl.modules.agent import Agent
 
 
-def metric_columns(env: TransformedEnv) -> list[tuple[str, int, str]]:
-    """``(key, column, name)`` of each scalar episode metric, e.g. ``("find_time", 0, "find_time_3cm")``."""
-    base = env.base_env
-    columns = []
-    for key in base.METRICS:
-        width = int(env.observation_spec[key].shape[-1])
-        if key == "find_time":
-            columns += [(key, i, f"find_time_{100 * t:g}cm") for i, t in enumerate(base.config.tolerances)]
-        else:
-            columns += [(key, i, key if width == 1 else f"{key}_{i}") for i in range(width)]
-    return columns
-
-
 @torch.no_grad()
 def evaluate(env: TransformedEnv, agent: Agent, seed: int) -> dict[str, float]:
     """Run one whole episode in every world of ``env`` (physically reset, seeded with ``seed``).
@@ -35,7 +22,7 @@ def evaluate(env: TransformedEnv, agent: Agent, seed: int) -> dict[str, float]:
     n = env.batch_size[0]
     ep_return = torch.zeros(n, device=td.device)
     finished = torch.zeros(n, dtype=torch.bool, device=td.device)
-    columns = metric_columns(env)
+    columns = env.base_env.metric_columns()
     final = torch.zeros(n, len(columns), device=td.device)
     keys = agent.obs_keys
     with set_exploration_type(ExplorationType.DETERMINISTIC):

@@ -44,6 +44,14 @@ def _observation_space(td: TensorDictBase) -> spaces.Dict:
     )
 
 
+def _open(task: str, num_envs: int, seed: int, overrides: dict):
+    """The batched env, its first output, one env's observation space and action space."""
+    env = make_env(task, num_envs, seed=seed, **overrides)
+    td = env.reset()
+    action_space = spaces.Box(-1.0, 1.0, shape=(env.base_env.n_actions,), dtype=np.float32)
+    return env, td, _observation_space(td), action_space
+
+
 def _obs(td: TensorDictBase) -> dict[str, np.ndarray]:
     # copies: the arrays handed out must not change when the env steps again
     return {key: td[key].detach().cpu().numpy().copy() for key in OBS_KEYS}
@@ -87,15 +95,13 @@ class RoToVectorEnv(VectorEnv):
     def __init__(
         self, task: str, num_envs: int = 1, seed: int = 0, render_mode: str | None = None, **overrides
     ) -> None:
-        self.env = make_env(task, num_envs, seed=seed, **overrides)
+        self.env, self._td, self.single_observation_space, self.single_action_space = _open(
+            task, num_envs, seed, overrides
+        )
         self.task = task
         self.num_envs = num_envs
         self.render_mode = render_mode
         self._metrics = self.env.base_env.METRICS
-        self._td = self.env.reset()
-        self.single_observation_space = _observation_space(self._td)
-        n_actions = self.env.base_env.n_actions
-        self.single_action_space = spaces.Box(-1.0, 1.0, shape=(n_actions,), dtype=np.float32)
         self.observation_space = gymnasium.vector.utils.batch_space(self.single_observation_space, num_envs)
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, num_envs)
 
@@ -146,13 +152,9 @@ class RoToEnv(gymnasium.Env):
     metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 60}
 
     def __init__(self, task: str, seed: int = 0, render_mode: str | None = None, **overrides) -> None:
-        self.env = make_env(task, 1, seed=seed, **overrides)
+        self.env, self._td, self.observation_space, self.action_space = _open(task, 1, seed, overrides)
         self.render_mode = render_mode
         self._metrics = self.env.base_env.METRICS
-        self._td = self.env.reset()
-        self.observation_space = _observation_space(self._td)
-        n_actions = self.env.base_env.n_actions
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(n_actions,), dtype=np.float32)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

@@ -43,7 +43,7 @@ from roto_trl.builders import (
 )
 from roto_trl.checkpoint import BEST, LATEST, load_checkpoint, save_checkpoint
 from roto_trl.errors import NonFiniteError
-from roto_trl.evaluation import evaluate, metric_columns
+from roto_trl.evaluation import evaluate
 from roto_trl.loggers import BACKENDS, MetricLogger
 from roto_trl.modules.agent import Agent
 from roto_trl.plots import plot_run
@@ -253,7 +253,7 @@ def train(cfg: DictConfig) -> Path:
     env = make_train_env(cfg)
     eval_env = make_eval_env(cfg)
     eval_seed = int(cfg.seed) + 1  # the same evaluation episodes every time: comparable returns
-    columns = metric_columns(env)
+    columns = env.base_env.metric_columns()  # scalar episode metrics, e.g. find_time_3cm
 
     # 2. the agent, PPO loss, advantage estimator and optimiser
     agent = agent_for_env(cfg, env)

@@ -75,7 +75,7 @@ class BaodingEnv(ShadowHandEnv):
     METRICS = ("rotations",)  # episode metrics reported in every step's output
 
     def __init__(self, num_envs: int, config: BaodingConfig | None = None, **kwargs):
-        super().__init__(num_envs, config or BaodingConfig(), **kwargs)
+        super().__init__(num_envs, config, **kwargs)
         m = self.mj_model
         self._ball_q = [int(m.jnt_qposadr[m.joint(b).id]) for b in ("ball_a", "ball_b")]
         self._ball_v = [int(m.jnt_dofadr[m.joint(b).id]) for b in ("ball_a", "ball_b")]

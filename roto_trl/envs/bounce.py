@@ -61,7 +61,7 @@ class BounceEnv(ShadowHandEnv):
     METRICS = ("bounces",)  # episode metrics reported in every step's output
 
     def __init__(self, num_envs: int, config: BounceConfig | None = None, **kwargs):
-        super().__init__(num_envs, config or BounceConfig(), **kwargs)
+        super().__init__(num_envs, config, **kwargs)
         m = self.mj_model
         ball = m.joint("ball")
         self._ball_q = int(m.jnt_qposadr[ball.id])

@@ -125,7 +125,7 @@ class FindEnv(RobotTaskEnv):
     CONFIG = FindConfig
 
     def __init__(self, num_envs: int, config: FindConfig | None = None, **kwargs):
-        super().__init__(num_envs, config or FindConfig(), **kwargs)
+        super().__init__(num_envs, config, **kwargs)
         m = self.mj_model
         if m.njnt != N_FRANKA_JOINTS or m.nu != N_FRANKA_JOINTS or m.nmocap != 1:
             raise RuntimeError(f"{SCENE}: expected 9 joints, 9 actuators and one mocap sphere")
@@ -135,6 +135,11 @@ class FindEnv(RobotTaskEnv):
         self.episode_seconds = self.config.episode_steps * CONTROL_DT
         self._first = torch.full((self.num_envs, len(self.tolerances)), float("inf"), dtype=torch.float64)
         self._dist = torch.zeros(self.num_envs, dtype=torch.float64)
+
+    def metric_columns(self) -> list[tuple[str, int, str]]:
+        """``object_distance``, then ``find_time_<tolerance in cm>cm`` per tolerance."""
+        times = [("find_time", i, f"find_time_{100 * t:g}cm") for i, t in enumerate(self.config.tolerances)]
+        return [("object_distance", 0, "object_distance"), *times]
 
     def _edit_spec(self, spec: mujoco.MjSpec) -> None:
         add_finger_pads(spec)

@@ -111,7 +111,8 @@ class RobotTaskEnv(BatchedMujocoEnv):
     METRICS: ClassVar[tuple[str, ...]]
     CONFIG: ClassVar[type[TaskConfig]]
 
-    def __init__(self, num_envs: int, config: TaskConfig, *, seed: int = 0, device="cpu"):
+    def __init__(self, num_envs: int, config: TaskConfig | None = None, *, seed: int = 0, device="cpu"):
+        config = self.CONFIG() if config is None else config
         model = load_scene(self.SCENE, self.ROBOT, config.substeps, edit=self._edit_spec)
         self.config = config
         self._index_robot(model)
@@ -190,6 +191,14 @@ class RobotTaskEnv(BatchedMujocoEnv):
     def default_pose_action(self) -> torch.Tensor:
         """The action ``[nu]`` that holds the task's default pose."""
         return self.action_for_targets(self._default_ctrl)
+
+    def metric_columns(self) -> list[tuple[str, int, str]]:
+        """``(key, column, name)`` of each scalar episode metric, e.g. ``("bounces", 0, "bounces")``."""
+        columns = []
+        for key in self.METRICS:
+            width = int(self.observation_spec[key].shape[-1])
+            columns += [(key, i, key if width == 1 else f"{key}_{i}") for i in range(width)]
+        return columns
 
     def sensor_bodies(self) -> list[int]:
         """Body id of each tactile sensor, in the order of the tactile vector."""
