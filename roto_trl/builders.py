@@ -52,10 +52,20 @@ def make_train_env(cfg) -> TransformedEnv:
     return make_task_env(cfg, cfg.env.num_envs, cfg.seed)
 
 
-def make_eval_env(cfg) -> TransformedEnv:
-    """The evaluation env: its own worlds and seed, never part of the training data."""
+def make_eval_env(cfg, num_envs: int | None = None) -> TransformedEnv:
+    """The evaluation env: its own worlds and seed, never part of the training data.
+
+    ``num_envs`` (one episode each) defaults to ``eval.num_envs``.
+    """
     cfg = _cfg(cfg)
-    return make_task_env(cfg, cfg.eval.num_envs, cfg.seed + EVAL_SEED_OFFSET)
+    return make_task_env(
+        cfg, cfg.eval.num_envs if num_envs is None else num_envs, cfg.seed + EVAL_SEED_OFFSET
+    )
+
+
+def eval_seed(cfg) -> int:
+    """The seed of every evaluation of a run: the same episodes each time, so returns compare."""
+    return int(_cfg(cfg).seed) + 1
 
 
 def agent_for_env(cfg, env: TransformedEnv) -> Agent:

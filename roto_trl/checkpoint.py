@@ -44,14 +44,12 @@ def load_checkpoint(path: Path, map_location: str | torch.device = "cpu") -> dic
     return state
 
 
-def policy_from_checkpoint(state: dict[str, Any], env):
-    """The deterministic policy of a loaded checkpoint, as a function from the env's output to actions.
+def agent_from_checkpoint(state: dict[str, Any], env):
+    """The trained :class:`~roto_trl.modules.agent.Agent` of a loaded checkpoint, in eval mode.
 
     Build ``env`` from the checkpoint's own settings (``builders.make_task_env(state["config"],
     ...)``); a mismatch in observations or actions is reported, not silently accepted.
     """
-    from torchrl.envs.utils import ExplorationType, set_exploration_type
-
     from roto_trl.builders import agent_for_env
 
     agent = agent_for_env(state["config"], env)
@@ -59,7 +57,15 @@ def policy_from_checkpoint(state: dict[str, Any], env):
         agent.load_state_dict(state["agent"])
     except RuntimeError as err:
         raise ValueError(f"the checkpoint does not fit this env's observations/actions: {err}") from err
-    agent.eval()
+    return agent.eval()
+
+
+def policy_from_checkpoint(state: dict[str, Any], env):
+    """The deterministic policy of a loaded checkpoint (see :func:`agent_from_checkpoint`), as a
+    function from the env's output to actions."""
+    from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+    agent = agent_from_checkpoint(state, env)
 
     def act(td):
         with torch.no_grad(), set_exploration_type(ExplorationType.DETERMINISTIC):

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
 import torch
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
@@ -9,28 +13,53 @@ from torchrl.envs.utils import ExplorationType, set_exploration_type
 from roto_trl.modules.agent import Agent
 
 
+@dataclass
+class Episodes:
+    """One episode per world of an evaluation env.
+
+    Attributes:
+        returns: ``[E]`` undiscounted episode returns.
+        lengths: ``[E]`` control steps of each episode.
+        final: ``name -> [E]`` each episode metric (``bounces``, ``find_time_3cm``, ...) at the
+            episode's last step.
+        frames: RGB frames ``[H, W, 3]`` of world 0's episode, when asked for.
+    """
+
+    returns: torch.Tensor
+    lengths: torch.Tensor
+    final: dict[str, torch.Tensor]
+    frames: list[np.ndarray]
+
+
 @torch.no_grad()
-def evaluate(env: TransformedEnv, agent: Agent, seed: int) -> dict[str, float]:
+def run_episodes(
+    env: TransformedEnv, agent: Agent, seed: int, render: Callable[[], np.ndarray] | None = None
+) -> Episodes:
     """Run one whole episode in every world of ``env`` (physically reset, seeded with ``seed``).
 
     Worlds whose episode ended keep stepping until all have ended; only each world's first
-    episode counts. Returns the mean and std of the episode return and the mean of each episode
-    metric at the episode's last step (``bounces``, ``rotations``, ``find_time_<tol>cm``, ...).
+    episode counts. ``render``, if given, is called after the reset and after every step of
+    world 0's episode (e.g. ``lambda: env.base_env.render(0)``).
     """
     env.set_seed(seed)
     td = env.reset()
     n = env.batch_size[0]
-    ep_return = torch.zeros(n, device=td.device)
+    returns = torch.zeros(n, device=td.device)
+    lengths = torch.zeros(n, dtype=torch.long, device=td.device)
     finished = torch.zeros(n, dtype=torch.bool, device=td.device)
     columns = env.base_env.metric_columns()
     final = torch.zeros(n, len(columns), device=td.device)
+    frames = [render()] if render is not None else []
     keys = agent.obs_keys
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         for _ in range(env.base_env.max_episode_steps):
             td.set("action", agent.policy(td.select(*keys).clone())["action"])
             out = env.step(td)["next"]
             live = ~finished
-            ep_return += out["reward"].squeeze(-1) * live
+            returns += out["reward"].squeeze(-1) * live
+            lengths += live.long()
+            if render is not None and bool(live[0]):
+                frames.append(render())
             ended = out["done"].squeeze(-1) & live
             if bool(ended.any()):
                 values = torch.stack([out[key][:, i] for key, i, _ in columns], dim=-1)
@@ -39,7 +68,16 @@ def evaluate(env: TransformedEnv, agent: Agent, seed: int) -> dict[str, float]:
             if bool(finished.all()):
                 break
             td = out
-    result = {"return_mean": float(ep_return.mean()), "return_std": float(ep_return.std(correction=0))}
-    for c, (_, _, name) in enumerate(columns):
-        result[name] = float(final[:, c].mean())
+    metrics = {name: final[:, c].cpu() for c, (_, _, name) in enumerate(columns)}
+    return Episodes(returns.cpu(), lengths.cpu(), metrics, frames)
+
+
+def evaluate(env: TransformedEnv, agent: Agent, seed: int) -> dict[str, float]:
+    """:func:`run_episodes`, summarised: return mean and std, and each episode metric's mean."""
+    episodes = run_episodes(env, agent, seed)
+    result = {
+        "return_mean": float(episodes.returns.mean()),
+        "return_std": float(episodes.returns.std(correction=0)),
+    }
+    result.update({name: float(v.mean()) for name, v in episodes.final.items()})
     return result

@@ -26,10 +26,10 @@ import av
 import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
-from omegaconf.errors import ConfigKeyError
 
 from roto_trl.builders import make_task_env
 from roto_trl.checkpoint import load_checkpoint, policy_from_checkpoint
+from roto_trl.cli import parse_key_values
 from roto_trl.envs.factory import TASKS, make_env
 
 DEFAULTS = {
@@ -48,18 +48,9 @@ FPS = 60  # one frame per control step: real time
 
 def parse_args(argv: list[str]) -> DictConfig:
     """``key=value`` arguments over ``DEFAULTS``, with one-line errors for unknown or missing keys."""
-    bad = [a for a in argv if "=" not in a]
-    if bad:
-        raise SystemExit(f"record: arguments are key=value, got {bad}; e.g. task=bounce policy=random")
-    cfg = OmegaConf.create(DEFAULTS)
-    OmegaConf.set_struct(cfg, True)
-    OmegaConf.set_struct(cfg.env, False)  # env.<field>: make_env checks the fields itself
-    try:
-        cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(argv))
-    except ConfigKeyError as err:
-        raise SystemExit(f"record: unknown key {err.key!r}; valid: {sorted(DEFAULTS)}") from None
-    if OmegaConf.is_missing(cfg, "task") or cfg.task not in TASKS:
-        raise SystemExit(f"record: give task=<{'|'.join(sorted(TASKS))}>")
+    cfg = parse_key_values("record", argv, DEFAULTS, "task=bounce policy=random")
+    if cfg.task not in TASKS:
+        raise SystemExit(f"record: give task=<{'|'.join(sorted(TASKS))}>, got {cfg.task!r}")
     return cfg
 
 

@@ -26,12 +26,15 @@ from pathlib import Path
 import hydra
 import numpy as np
 import torch
+from hydra.core.hydra_config import HydraConfig
+from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDictBase
 from tqdm import tqdm
 
 from roto_trl.builders import (
     agent_for_env,
+    eval_seed,
     make_advantage,
     make_aux_update,
     make_collector,
@@ -43,8 +46,9 @@ from roto_trl.builders import (
 )
 from roto_trl.checkpoint import BEST, LATEST, load_checkpoint, save_checkpoint
 from roto_trl.errors import NonFiniteError
+from roto_trl.evaluate import evaluate_run
 from roto_trl.evaluation import evaluate
-from roto_trl.loggers import BACKENDS, MetricLogger
+from roto_trl.loggers import BACKENDS, MetricLogger, read_csv
 from roto_trl.modules.agent import Agent
 from roto_trl.plots import plot_run
 from roto_trl.resources import resource_dir
@@ -71,6 +75,9 @@ def check_config(cfg: DictConfig) -> None:
             raise ValueError(f"{key} must be a positive integer, got {value!r}")
     if cfg.env.num_envs * cfg.agent.rollout_len < cfg.agent.minibatches:
         raise ValueError("agent.minibatches exceeds one rollout's frames (env.num_envs * agent.rollout_len)")
+    limit = cfg.time_limit_minutes
+    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int | float) or limit <= 0):
+        raise ValueError(f"time_limit_minutes must be > 0 or null, got {cfg.time_limit_minutes!r}")
     if not float(cfg.agent.lr) > 0:
         raise ValueError(f"agent.lr must be > 0, got {cfg.agent.lr}")
     if cfg.logger.backend not in BACKENDS:
@@ -252,7 +259,6 @@ def train(cfg: DictConfig) -> Path:
     # 1. the envs: training worlds and separate evaluation worlds
     env = make_train_env(cfg)
     eval_env = make_eval_env(cfg)
-    eval_seed = int(cfg.seed) + 1  # the same evaluation episodes every time: comparable returns
     columns = env.base_env.metric_columns()  # scalar episode metrics, e.g. find_time_3cm
 
     # 2. the agent, PPO loss, advantage estimator and optimiser
@@ -318,7 +324,7 @@ def train(cfg: DictConfig) -> Path:
     size = f"{cfg.env.num_envs} worlds, {cfg.total_frames:,} frames"
     print(f"run: {run_dir.resolve()} ({cfg.exp_name}, {size})")
     if resumed is None:  # the untrained policy: where the learning curve starts
-        start_eval = evaluate(eval_env, agent, eval_seed)
+        start_eval = evaluate(eval_env, agent, eval_seed(cfg))
         logger.log("eval", {"iteration": 0, **start_eval}, 0)
         postfix["eval_return"] = f"{start_eval['return_mean']:.2f}"
     t_collect = time.perf_counter()
@@ -349,10 +355,11 @@ def train(cfg: DictConfig) -> Path:
             for row in aux_rows:  # the auxiliary loss of every minibatch, CSV only
                 logger.log("aux", {"iteration": iteration, **row}, frames, csv_only=True)
 
-            done_training = frames >= cfg.total_frames
+            out_of_time = cfg.time_limit_minutes is not None and wall >= 60 * float(cfg.time_limit_minutes)
+            done_training = frames >= cfg.total_frames or out_of_time
             if iteration % cfg.eval.interval == 0 or done_training:
                 t0 = time.perf_counter()
-                final_eval = evaluate(eval_env, agent, eval_seed)
+                final_eval = evaluate(eval_env, agent, eval_seed(cfg))
                 final_eval["time"] = time.perf_counter() - t0
                 logger.log("eval", {"iteration": iteration, **final_eval}, frames)
                 postfix["eval_return"] = f"{final_eval['return_mean']:.2f}"
@@ -366,6 +373,8 @@ def train(cfg: DictConfig) -> Path:
             bar.set_postfix(postfix, refresh=False)
             bar.update(batch.numel())
             if done_training:
+                if out_of_time and frames < cfg.total_frames:
+                    print(f"time limit of {cfg.time_limit_minutes} min reached at {frames:,} frames")
                 break
             t_collect = time.perf_counter()
     finally:
@@ -389,22 +398,52 @@ def train(cfg: DictConfig) -> Path:
     }
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2))
     plots = plot_run(run_dir)
+    # the physical metrics of the best policy, for the report (also rewrites index.md)
+    evaluation = evaluate_run(run_dir, "best", episodes=int(cfg.eval.num_envs))
     print(f"run directory: {run_dir.resolve()}")
     print(f"plots: {', '.join(str(p.resolve()) for p in plots)}")
     print(f"summary: {(run_dir / 'summary.json').resolve()}")
+    print(f"physical metrics of the best checkpoint: {evaluation.resolve()}")
+    print(f"report: {(run_dir / 'index.md').resolve()}")
     return run_dir / "summary.json"
 
 
+OBJECTIVE_EVALS = 3  # a run's objective averages this many last evaluations
+
+
+def run_objective(run_dir: Path) -> float:
+    """A run's objective, what a sweep maximises: the mean ``return_mean`` of the last
+    ``OBJECTIVE_EVALS`` evaluations in ``<run_dir>/eval.csv`` (all of them when there are fewer),
+    steadier than the final evaluation alone."""
+    returns = read_csv(Path(run_dir) / "eval.csv").get("return_mean", [])
+    if not returns:
+        raise ValueError(f"{run_dir}/eval.csv holds no evaluation")
+    last = returns[-OBJECTIVE_EVALS:]
+    return sum(last) / len(last)
+
+
 @hydra.main(config_path=str(resource_dir("conf")), config_name="train", version_base="1.3")
-def main(cfg: DictConfig) -> None:
+def main(cfg: DictConfig) -> float:
+    """Train; return the run's objective (``run_objective``) for a sweep.
+
+    A single run reports a NaN/inf stop (exit status 3) and bad input (status 2) in one line. In a
+    multirun the error propagates instead: Hydra's launcher records the job as failed and the
+    sweeper goes on with the next trial, where ``sys.exit`` would end the whole sweep.
+    """
+    in_sweep = HydraConfig.get().mode == RunMode.MULTIRUN
     try:
-        train(cfg)
+        summary = train(cfg)
     except NonFiniteError as err:
+        if in_sweep:
+            raise
         print(f"train: stopped: {err}. The last good checkpoint is intact.", file=sys.stderr)
         sys.exit(EXIT_NON_FINITE)
     except (ValueError, FileNotFoundError, FileExistsError) as err:
+        if in_sweep:
+            raise
         print(f"train: {err}", file=sys.stderr)
         sys.exit(2)
+    return run_objective(summary.parent)
 
 
 if __name__ == "__main__":

@@ -1,6 +1,30 @@
-"""Scripted policies shared by the tests."""
+"""Scripted policies and tiny training configs shared by the tests."""
 
 import torch
+from hydra import compose, initialize_config_dir
+
+from roto_trl.resources import resource_dir
+
+# tiny and fast on top of +profile=smoke: short episodes, few gradient steps
+TINY = [
+    "+profile=smoke",
+    "env.num_envs=8",
+    "agent.rollout_len=16",
+    "agent.minibatches=2",
+    "agent.epochs=2",
+    "total_frames=256",
+    "eval.num_envs=2",
+    "+env.overrides.episode_steps=40",
+    "progress=false",
+    "torch_threads=1",
+    "logger=csv",
+]
+
+
+def compose_cfg(overrides):
+    """The training config of ``roto_trl/train.py`` with Hydra ``overrides``."""
+    with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
+        return compose("train", overrides=overrides)
 
 
 def hold_pose(env, steps: int, td=None):

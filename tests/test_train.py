@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from hydra import compose, initialize_config_dir
+from helpers import TINY, compose_cfg
 from omegaconf import OmegaConf
 
 from roto_trl.builders import agent_for_env, make_train_env
@@ -22,32 +22,16 @@ from roto_trl.train import EXIT_NON_FINITE, check_config, train
 
 FRAMES_PER_ITERATION = 8 * 16  # TINY: 8 worlds x 16 steps
 TRAIN = [sys.executable, str(Path(__file__).resolve().parent.parent / "roto_trl" / "train.py")]
-EXPS = sorted(p.stem for p in (resource_dir("conf") / "exp").glob("*.yaml"))
-assert len(EXPS) == 24  # Table A4's 21 experiments and the 3 no-last-action ablations
-# tiny and fast on top of +profile=smoke: short episodes, few gradient steps
-TINY = [
-    "+profile=smoke",
-    "env.num_envs=8",
-    "agent.rollout_len=16",
-    "agent.minibatches=2",
-    "agent.epochs=2",
-    "total_frames=256",
-    "eval.num_envs=2",
-    "+env.overrides.episode_steps=40",
-    "progress=false",
-    "torch_threads=1",
-    "logger=csv",
-]
-
-
-def compose_cfg(overrides):
-    with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
-        return compose("train", overrides=overrides)
-
-
+# Table A4's 21 experiments and the 3 no-last-action ablations (conf/exp/ may hold more: tuned sweeps)
+VARIANTS = ("ppo_prop", "ppo", "ppo_prop_nolastaction", "fr", "tr", "fd", "tfd", "fd_mem")
+EXPS = [f"{task}_{variant}" for task in ("find", "bounce", "baoding") for variant in VARIANTS]
 def rows(path: Path) -> list[dict[str, str]]:
     with path.open(newline="") as handle:
         return list(csv.DictReader(handle))
+
+
+def test_every_experiment_has_its_config():
+    assert {f"{exp}.yaml" for exp in EXPS} <= {p.name for p in (resource_dir("conf") / "exp").glob("*.yaml")}
 
 
 @pytest.mark.parametrize("exp", EXPS)
@@ -94,6 +78,8 @@ def test_smoke_run_of_every_experiment_writes_its_run_directory(exp, tmp_path):
     assert [int(r["frames"]) for r in rows(run / "train.csv")] == [128, 256, 384, 512]
     assert [int(r["frames"]) for r in rows(run / "eval.csv")] == [0, 256, 512]  # start, every 2 iterations
     assert (run / "config.yaml").is_file() and (run / "plots" / "eval.png").is_file()
+    assert json.loads((run / "eval.json").read_text())["physical"]  # the best checkpoint's metrics
+    assert "![evaluation](plots/eval.png)" in (run / "index.md").read_text()
     state = load_checkpoint(run)
     assert state["frames"] == 512 and "value_norm.mean" in "".join(state["agent"])
     assert (run / "checkpoints" / "best.pt").is_file()

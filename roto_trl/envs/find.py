@@ -132,7 +132,6 @@ class FindEnv(RobotTaskEnv):
         self._ee_pos = sensor_slice(m, "ee:pos")
         self._ee_quat = sensor_slice(m, "ee:quat")
         self.tolerances = torch.tensor(self.config.tolerances, dtype=torch.float64)
-        self.episode_seconds = self.config.episode_steps * CONTROL_DT
         self._first = torch.full((self.num_envs, len(self.tolerances)), float("inf"), dtype=torch.float64)
         self._dist = torch.zeros(self.num_envs, dtype=torch.float64)
 
@@ -140,6 +139,22 @@ class FindEnv(RobotTaskEnv):
         """``object_distance``, then ``find_time_<tolerance in cm>cm`` per tolerance."""
         times = [("find_time", i, f"find_time_{100 * t:g}cm") for i, t in enumerate(self.config.tolerances)]
         return [("object_distance", 0, "object_distance"), *times]
+
+    def physical_metrics(self, final: dict[str, torch.Tensor]) -> dict[str, float]:
+        """Find's physical metrics from each episode's final values (``name -> [E]``).
+
+        Returns ``object_distance`` (m, at the episode's end) and, per tolerance, ``find_time_<tol>``
+        (s, mean over episodes; an episode that never reached it counts the full 5 s) and
+        ``reached_<tol>`` (the fraction of episodes that got within it before the last step).
+        """
+        out = {"object_distance": float(final["object_distance"].double().mean())}
+        for _, _, name in self.metric_columns()[1:]:
+            times = final[name].double()
+            out[name] = float(times.mean())
+            out["reached_" + name.removeprefix("find_time_")] = float(
+                (times < self.episode_seconds).double().mean()
+            )
+        return out
 
     def _edit_spec(self, spec: mujoco.MjSpec) -> None:
         add_finger_pads(spec)

@@ -18,7 +18,7 @@ from torchrl.data import Unbounded
 
 from roto_trl.envs.batched_mujoco import BatchedMujocoEnv, PhysicsReading
 from roto_trl.envs.rendering import SceneRenderer
-from roto_trl.envs.scene import load_scene
+from roto_trl.envs.scene import CONTROL_DT, load_scene
 
 
 @dataclass
@@ -127,6 +127,7 @@ class RobotTaskEnv(BatchedMujocoEnv):
             num_threads=config.num_threads,
         )
         self._target = torch.zeros(self.num_envs, model.nu, dtype=torch.float64)
+        self.episode_seconds = config.episode_steps * CONTROL_DT
 
     def _edit_spec(self, spec: mujoco.MjSpec) -> None:
         """Change the parsed scene before it compiles (default: nothing)."""
@@ -199,6 +200,20 @@ class RobotTaskEnv(BatchedMujocoEnv):
             width = int(self.observation_spec[key].shape[-1])
             columns += [(key, i, key if width == 1 else f"{key}_{i}") for i in range(width)]
         return columns
+
+    def physical_metrics(self, final: dict[str, torch.Tensor]) -> dict[str, float]:
+        """The paper's physical metrics from each episode's final metric values.
+
+        Args:
+            final: ``name -> [E]`` (names of :meth:`metric_columns`), one value per episode.
+
+        Returns:
+            ``<name>_per_10s``: the count metrics (bounces, rotations) per 10 s of episode time,
+            averaged over episodes. An episode that ends early (a dropped ball) keeps its count
+            and is scored over the full episode length, so dropping never raises the rate.
+        """
+        scale = 10.0 / self.episode_seconds
+        return {f"{name}_per_10s": float(v.double().mean()) * scale for name, v in final.items()}
 
     def sensor_bodies(self) -> list[int]:
         """Body id of each tactile sensor, in the order of the tactile vector."""

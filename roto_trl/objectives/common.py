@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModule, TensorDictParams
 from torch import nn
 from torchrl.objectives import LossModule
 
@@ -33,6 +33,11 @@ class EncoderLoss(LossModule):
         target_encoder: keep an EMA copy of the encoder (``target_encoder_network_params``),
             updated with TorchRL's ``SoftUpdate(loss, tau=...)``.
     """
+
+    # declared for TorchRL's convert_to_functional, which warns about undeclared module names
+    encoder_network: TensorDictModule
+    encoder_network_params: TensorDictParams
+    target_encoder_network_params: TensorDictParams
 
     def __init__(
         self, encoder: TensorDictModule, *, pos_weight: float | str = 10.0, target_encoder: bool = False

@@ -119,6 +119,13 @@ class TactileForwardDynamicsLoss(ForwardDynamicsLoss):
         super().__init__(encoder, action_dim, latent_dim=latent_dim, pos_weight=pos_weight)
         self.tactile_decoder = decoder(latent_dim, tactile_dim)
 
+    @torch.no_grad()
+    def predict_tactile(self, tensordict: TensorDictBase) -> torch.Tensor:
+        """Contact probabilities ``[B, n-1, K]`` of steps t+1 .. t+n-1, predicted from the latent
+        of step t and the actions of a sequence ``tensordict`` ``[B, n]`` (the loss's horizons)."""
+        predicted, _ = self._predict(tensordict)
+        return torch.sigmoid(self.tactile_decoder(predicted))
+
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         predicted, target = self._predict(tensordict)
         projected = self.projector(predicted)

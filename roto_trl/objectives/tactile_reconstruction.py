@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
@@ -43,6 +44,11 @@ class TactileReconstructionLoss(EncoderLoss):
     ) -> None:
         super().__init__(encoder, pos_weight=pos_weight)
         self.tactile_decoder = decoder(latent_dim, tactile_dim)
+
+    @torch.no_grad()
+    def predict_tactile(self, tensordict: TensorDictBase) -> torch.Tensor:
+        """Contact probabilities ``[*B, K]`` reconstructed from the latent of ``tensordict`` ``[*B]``."""
+        return torch.sigmoid(self.tactile_decoder(self.encode(tensordict)))
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         target = self.entry(tensordict, self.tensor_keys.tactile).float()

@@ -1,0 +1,339 @@
+"""Figures and numbers from trained runs (the paper's Section 6 and Appendices A, B, E, H).
+
+    python roto_trl/analyse.py curves 'runs/compare/bounce_*'          # return vs frames, physical metrics
+    python roto_trl/analyse.py mi runs/compare/bounce_ppo-s0 runs/compare/bounce_fd-s0
+    python roto_trl/analyse.py latent runs/compare/bounce_fd-s0       # 2-D PCA of z over one episode
+    python roto_trl/analyse.py tactile runs/bounce_tfd/<run>          # predicted vs actual contacts
+    python roto_trl/analyse.py aux-memory 'runs/baoding_fd*/*'        # auxiliary loss per minibatch
+
+Runs are run directories of ``train.py`` or quoted globs of them. Each command writes PNGs and a
+CSV of the numbers behind them to ``--out`` (default ``runs/analysis/<command>``) and prints
+their paths. Commands that run an agent (mi, latent, tactile) use its ``--checkpoint``
+(``best`` or ``latest``) on fresh evaluation worlds with the run's evaluation seed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only, no display
+import matplotlib.pyplot as plt
+import numpy as np
+import torch
+from omegaconf import OmegaConf
+
+from roto_trl.analysis.mutual_information import latent_state_information, pca
+from roto_trl.analysis.rollouts import collect
+from roto_trl.analysis.runs import Run, by_experiment, find_runs, learning_curve, one_task, physical_metrics
+from roto_trl.builders import eval_seed, make_aux_update, make_eval_env
+from roto_trl.evaluate import load_run
+from roto_trl.loggers import read_csv
+
+CONFUSION = ("tpr", "fpr", "fnr", "tnr", "accuracy", "precision")
+
+
+def write_csv(path: Path, header: list[str], rows: list[list]) -> Path:
+    with path.open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        writer.writerows(rows)
+    return path
+
+
+def save(fig, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# ---------------------------------------------------------------------------- curves
+
+
+def cmd_curves(runs: list[Run], out: Path, args) -> list[Path]:
+    """Evaluation return vs frames (mean ± 1 std across seeds) and the physical-metric bars."""
+    one_task(runs, "curves")
+    groups = by_experiment(runs)
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    rows = []
+    for exp, members in groups.items():
+        curve = learning_curve(members)
+        ax.plot(curve.frames, curve.mean, label=f"{exp} ({curve.seeds} seeds)")
+        ax.fill_between(curve.frames, curve.mean - curve.std, curve.mean + curve.std, alpha=0.25)
+        rows += [
+            [exp, int(f), m, s, curve.seeds]
+            for f, m, s in zip(curve.frames, curve.mean, curve.std, strict=True)
+        ]
+    ax.set(xlabel="env steps (frames)", ylabel="evaluation return", title="evaluation return (mean ± 1 std)")
+    ax.legend()
+    written = [save(fig, out / "curves.png")]
+    written.append(
+        write_csv(out / "curves.csv", ["exp_name", "frames", "return_mean", "return_std", "seeds"], rows)
+    )
+
+    if args.no_physical:
+        return written
+    metrics = {exp: physical_metrics(members) for exp, members in groups.items()}
+    names = list(next(iter(metrics.values())))
+    fig, axes = plt.subplots(1, len(names), figsize=(3.2 * len(names), 3.6), squeeze=False)
+    rows = []
+    for ax, name in zip(axes[0], names, strict=True):
+        x = np.arange(len(groups))
+        means = [metrics[exp][name].mean() for exp in groups]
+        maxes = [metrics[exp][name].max() for exp in groups]
+        ax.bar(x, maxes, color="C0", alpha=0.3, label="max")
+        ax.bar(x, means, color="C0", edgecolor="black", linewidth=1.5, label="mean")
+        ax.set_xticks(x, list(groups), rotation=30, ha="right")
+        ax.set_title(name)
+        rows += [
+            [exp, name, m, mx, len(metrics[exp][name])]
+            for exp, m, mx in zip(groups, means, maxes, strict=True)
+        ]
+    axes[0, 0].legend()
+    written.append(save(fig, out / "physical.png"))
+    written.append(write_csv(out / "physical.csv", ["exp_name", "metric", "mean", "max", "seeds"], rows))
+    return written
+
+
+# ---------------------------------------------------------------------------- agents on fresh worlds
+
+
+def agent_runs(runs: list[Run], args):
+    """Each run's agent and its deterministic trajectories (``args.worlds`` episodes)."""
+    for run in runs:
+        _, state, _ = load_run(run.path, args.checkpoint)
+        agent, traj = collect(state, args.worlds, eval_seed(run.config), args.max_steps)
+        yield run, state, agent, traj
+
+
+def cmd_mi(runs: list[Run], out: Path, args) -> list[Path]:
+    """I(z; s) and I(z; s_j) (KSG, PCA to ``--pca`` components) of each agent."""
+    one_task(runs, "mi")
+    rng = np.random.default_rng(args.seed)
+    results = {}
+    for run, _, _, traj in agent_runs(runs, args):
+        live = traj.live.reshape(-1)
+        z = traj.z.reshape(-1, traj.z.shape[-1])[live].numpy()
+        s = traj.state.reshape(-1, traj.state.shape[-1])[live].numpy()
+        if len(z) < args.samples:
+            raise ValueError(
+                f"{run.path}: {len(z)} steps collected, fewer than --samples {args.samples}; raise --worlds"
+            )
+        pick = rng.choice(len(z), args.samples, replace=False)
+        joint, marginal = latent_state_information(z[pick], s[pick], args.pca, args.k, args.seed)
+        results[run.label] = (joint, marginal)
+        print(f"{run.label}: I(z; s) = {joint:.3f} nats")
+    labels = list(results)
+    width = 0.8 / len(labels)
+    n_state = len(next(iter(results.values()))[1])
+    fig, (ax0, ax1) = plt.subplots(
+        1, 2, figsize=(3 + 0.5 * n_state + 2, 3.8), gridspec_kw={"width_ratios": [1, 3]}
+    )
+    ax0.bar(range(len(labels)), [results[k][0] for k in labels], color=[f"C{i}" for i in range(len(labels))])
+    ax0.set_xticks(range(len(labels)), labels, rotation=30, ha="right")
+    ax0.set(title="I(z; s)", ylabel="nats")
+    for i, label in enumerate(labels):
+        ax1.bar(np.arange(n_state) + i * width, results[label][1], width, label=label, color=f"C{i}")
+    ax1.set(title="I(z; s_j) per state element", xlabel="state element j", ylabel="nats")
+    ax1.set_xticks(np.arange(n_state) + 0.4 - width / 2, [str(j) for j in range(n_state)])
+    ax1.legend(fontsize=7)
+    rows = [[label, "joint", results[label][0]] for label in labels]
+    rows += [[label, f"s_{j}", v] for label in labels for j, v in enumerate(results[label][1])]
+    return [save(fig, out / "mi.png"), write_csv(out / "mi.csv", ["run", "state", "mi_nats"], rows)]
+
+
+def cmd_latent(runs: list[Run], out: Path, args) -> list[Path]:
+    """2-component PCA of z over world 0's episode, coloured by time and by summed contacts."""
+    written = []
+    for run, _, _, traj in agent_runs(runs, args):
+        steps = int(traj.live[:, 0].sum())
+        z = traj.z[:steps, 0].numpy()
+        contacts = traj.contacts[:steps, 0].sum(-1).numpy()
+        scores, explained = pca(z, 2)
+        fig, axes = plt.subplots(1, 2, figsize=(10, 4.2))
+        for ax, colour, name in (
+            (axes[0], np.arange(steps), "time step"),
+            (axes[1], contacts, "summed contacts"),
+        ):
+            ax.plot(scores[:, 0], scores[:, 1], color="grey", linewidth=0.5, alpha=0.5)
+            points = ax.scatter(scores[:, 0], scores[:, 1], c=colour, s=8, cmap="viridis")
+            fig.colorbar(points, ax=ax, label=name)
+            ax.set(xlabel=f"PC 1 ({explained[0]:.0%})", ylabel=f"PC 2 ({explained[1]:.0%})")
+        fig.suptitle(f"{run.label}: latent trajectory of one episode")
+        stem = f"latent-{run.exp_name}-{run.path.name}"
+        written.append(save(fig, out / f"{stem}.png"))
+        rows = [[t, scores[t, 0], scores[t, 1], int(contacts[t])] for t in range(steps)]
+        written.append(write_csv(out / f"{stem}.csv", ["step", "pc1", "pc2", "contacts"], rows))
+    return written
+
+
+def cmd_tactile(runs: list[Run], out: Path, args) -> list[Path]:
+    """Predicted vs actual contacts over a sequence, and the confusion metrics per horizon."""
+    written = []
+    for run in runs:
+        ssl = run.config["ssl"]["name"]
+        if ssl not in ("tr", "tfd"):
+            raise ValueError(f"tactile needs a TR or TFD run (ssl tr/tfd); {run.path} has ssl={ssl}")
+    for run, state, agent, traj in agent_runs(runs, args):
+        cfg = OmegaConf.create(state["config"])
+        cfg.device = "cpu"
+        env = make_eval_env(cfg, 1)
+        loss = make_aux_update(cfg, agent, env).loss
+        env.close()
+        loss.load_state_dict(state["aux"]["loss"])
+        steps = min(int(traj.live[:, 0].sum()), args.steps)
+        episode = traj.inputs[:steps, 0]
+        n_contacts = traj.contacts.shape[-1]
+        if ssl == "tr":
+            predicted = loss.predict_tactile(episode)[:, -n_contacts:]
+            actual, first = traj.contacts[:steps, 0], 0
+        else:  # one step ahead from every step: windows (t, t+1)
+            windows = torch.stack([episode[:-1], episode[1:]], dim=1)
+            predicted = loss.predict_tactile(windows)[:, 0, -n_contacts:]
+            actual, first = traj.contacts[1:steps, 0], 1
+        stem = f"tactile-{run.exp_name}-{run.path.name}"
+        written.append(
+            save(contact_map(actual.numpy(), predicted.numpy(), first, run.label, ssl), out / f"{stem}.png")
+        )
+        rows = [
+            [first + t, c, int(actual[t, c]), float(predicted[t, c])]
+            for t in range(len(actual))
+            for c in range(n_contacts)
+        ]
+        written.append(write_csv(out / f"{stem}.csv", ["step", "sensor", "actual", "predicted"], rows))
+        written += confusion_over_training(run, out)
+    return written
+
+
+def contact_map(actual: np.ndarray, predicted: np.ndarray, first: int, title: str, ssl: str):
+    """Sensors × time: actual contacts (black) above predicted probabilities (opacity)."""
+    steps, sensors = actual.shape
+    fig, axes = plt.subplots(2, 1, figsize=(max(6, steps / 12), 1.2 + 0.25 * sensors * 2), sharex=True)
+    extent = (first - 0.5, first + steps - 0.5, sensors - 0.5, -0.5)
+    axes[0].imshow(
+        actual.T, aspect="auto", cmap="Greys", vmin=0, vmax=1, extent=extent, interpolation="nearest"
+    )
+    axes[0].set(ylabel="sensor", title="actual contacts")
+    rgba = np.zeros((sensors, steps, 4))
+    rgba[..., 2] = 0.8
+    rgba[..., 3] = predicted.T
+    axes[1].imshow(rgba, aspect="auto", extent=extent, interpolation="nearest")
+    what = "reconstructed" if ssl == "tr" else "predicted one step ahead"
+    axes[1].set(ylabel="sensor", xlabel="time step", title=f"{what} (opacity = probability)")
+    fig.suptitle(title)
+    return fig
+
+
+def confusion_over_training(run: Run, out: Path) -> list[Path]:
+    """TPR, FPR, FNR, TNR, accuracy and precision per horizon against frames, from ``aux.csv``."""
+    path = run.path / "aux.csv"
+    if not path.is_file():
+        print(f"{run.path}: no aux.csv, no confusion metrics over training")
+        return []
+    aux = read_csv(path)
+    frames = np.asarray(aux["frames"])
+    steps = sorted({f for f in frames})
+    fig, axes = plt.subplots(1, len(CONFUSION), figsize=(3.2 * len(CONFUSION), 3.2))
+    rows = []
+    for ax, name in zip(axes, CONFUSION, strict=True):
+        columns = [k for k in aux if k == name or k.startswith(f"{name}_h")]
+        for column in columns:
+            values = np.asarray(aux[column])
+            per_iteration = [float(np.nanmean(values[frames == f])) for f in steps]
+            ax.plot(steps, per_iteration, label=column.removeprefix(name).lstrip("_") or "reconstruction")
+            rows += [[column, int(f), v] for f, v in zip(steps, per_iteration, strict=True)]
+        ax.set(title=name, xlabel="frames", ylim=(0, 1))
+    axes[0].legend(fontsize=7)
+    stem = f"tactile-metrics-{run.exp_name}-{run.path.name}"
+    return [
+        save(fig, out / f"{stem}.png"),
+        write_csv(out / f"{stem}.csv", ["metric", "frames", "mean"], rows),
+    ]
+
+
+# ---------------------------------------------------------------------------- auxiliary memory
+
+
+def cmd_aux_memory(runs: list[Run], out: Path, args) -> list[Path]:
+    """The unscaled auxiliary loss of every minibatch over training, one line per run."""
+    fig, ax = plt.subplots(figsize=(8, 4))
+    rows = []
+    for run in runs:
+        path = run.path / "aux.csv"
+        if not path.is_file():
+            raise ValueError(f"{run.path} has no aux.csv; aux-memory needs runs with an SSL objective")
+        aux = read_csv(path)
+        terms = [k for k in aux if k.startswith("loss_")]
+        loss = np.sum([np.asarray(aux[k]) for k in terms], axis=0)
+        memory = run.config["ssl"]["memory_rollouts"]
+        ax.plot(np.arange(len(loss)), loss, linewidth=0.6, label=f"{run.label} (N_rollouts={memory})")
+        rows += [
+            [run.label, memory, i, int(f), v]
+            for i, (f, v) in enumerate(zip(aux["frames"], loss, strict=True))
+        ]
+    ax.set(xlabel="auxiliary step (minibatch)", ylabel="auxiliary loss (unscaled)", yscale="log")
+    ax.set_title("auxiliary loss per minibatch")
+    ax.legend(fontsize=7)
+    header = ["run", "memory_rollouts", "step", "frames", "loss"]
+    return [save(fig, out / "aux_memory.png"), write_csv(out / "aux_memory.csv", header, rows)]
+
+
+COMMANDS = {
+    "curves": cmd_curves,
+    "mi": cmd_mi,
+    "latent": cmd_latent,
+    "tactile": cmd_tactile,
+    "aux-memory": cmd_aux_memory,
+}
+
+
+def parse_args(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="analyse.py", description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, fn in COMMANDS.items():
+        p = sub.add_parser(name, help=fn.__doc__.splitlines()[0])
+        p.add_argument("runs", nargs="+", help="run directories or quoted globs")
+        p.add_argument(
+            "--out", type=Path, default=None, help=f"output directory (default runs/analysis/{name})"
+        )
+        if name in ("mi", "latent", "tactile"):
+            p.add_argument("--checkpoint", default="best", choices=["best", "latest"])
+            p.add_argument(
+                "--worlds", type=int, default=100 if name == "mi" else 1, help="evaluation episodes"
+            )
+            p.add_argument("--max-steps", type=int, default=None, help="steps per episode (default: all)")
+        if name == "curves":
+            p.add_argument(
+                "--no-physical", action="store_true", help="skip the physical-metric bars (no eval.json)"
+            )
+        if name == "mi":
+            p.add_argument("--samples", type=int, default=5000, help="(z, s) pairs, drawn from all steps")
+            p.add_argument("--pca", type=int, default=13, help="principal components of z")
+            p.add_argument("--k", type=int, default=4, help="KSG neighbours")
+            p.add_argument("--seed", type=int, default=0, help="seed of the sample draw")
+        if name == "tactile":
+            p.add_argument("--steps", type=int, default=120, help="steps shown in the contact map")
+    return parser.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> list[Path]:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    out = args.out or Path("runs") / "analysis" / args.command
+    try:
+        runs = find_runs(args.runs)
+        out.mkdir(parents=True, exist_ok=True)
+        written = COMMANDS[args.command](runs, out, args)
+    except (ValueError, FileNotFoundError) as err:  # bad input: one line, no traceback
+        raise SystemExit(f"analyse {args.command}: {err}") from None
+    for path in written:
+        print(path.resolve())
+    return written
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,1 @@
+"""Analysis of trained runs: the numbers behind ``roto_trl/analyse.py``."""

@@ -1,0 +1,86 @@
+"""Deterministic episodes of a trained agent with everything the analyses read: latents, states,
+contacts, actions and the encoder's inputs, step by step."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+from omegaconf import OmegaConf
+from tensordict import TensorDict
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+
+from roto_trl.builders import make_eval_env
+from roto_trl.checkpoint import agent_from_checkpoint
+from roto_trl.modules.agent import Agent
+
+
+@dataclass
+class Trajectories:
+    """One episode per world, step-major (T steps, E worlds).
+
+    Attributes:
+        z: ``[T, E, 256]`` the encoder's latent of each step's observation.
+        state: ``[T, E, S]`` the privileged physical state (ball pose and velocity, ...).
+        contacts: ``[T, E, C]`` 0/1, the current tactile reading (the newest of the frame history).
+        inputs: ``[T, E]`` the encoder's observation entries and the ``action`` taken.
+        live: ``[T, E]`` bool, the step belongs to the world's first episode.
+    """
+
+    z: torch.Tensor
+    state: torch.Tensor
+    contacts: torch.Tensor
+    inputs: TensorDict
+    live: torch.Tensor
+
+
+@torch.no_grad()
+def collect(
+    state: dict[str, Any], worlds: int, seed: int, max_steps: int | None = None
+) -> tuple[Agent, Trajectories]:
+    """Run a checkpoint's deterministic policy for one episode in each of ``worlds`` fresh worlds.
+
+    Args:
+        state: a loaded training checkpoint (``roto_trl.checkpoint.load_checkpoint``).
+        worlds: evaluation worlds (E).
+        seed: the evaluation seed.
+        max_steps: stop after this many steps (default: until every episode ended).
+
+    Returns:
+        The checkpoint's agent and the trajectories.
+    """
+    cfg = OmegaConf.create(state["config"])
+    cfg.device = "cpu"
+    env = make_eval_env(cfg, worlds)
+    try:
+        agent = agent_from_checkpoint(state, env)
+        n_contacts = len(env.base_env.SENSORS)
+        steps = (
+            env.base_env.max_episode_steps
+            if max_steps is None
+            else min(max_steps, env.base_env.max_episode_steps)
+        )
+        env.set_seed(seed)
+        td = env.reset()
+        finished = torch.zeros(worlds, dtype=torch.bool)
+        z, states, contacts, inputs, live = [], [], [], [], []
+        with set_exploration_type(ExplorationType.DETERMINISTIC):
+            for _ in range(steps):
+                td = td.select(*agent.obs_keys, "state", "tactile").clone()
+                agent.policy(td)
+                z.append(td["z"])
+                states.append(td["state"])
+                contacts.append(td["tactile"][:, -n_contacts:])
+                inputs.append(td.select(*agent.obs_keys, "action"))
+                live.append(~finished)
+                out = env.step(td)["next"]
+                finished = finished | out["done"].squeeze(-1)
+                if bool(finished.all()):
+                    break
+                td = out
+    finally:
+        env.close()
+    return agent, Trajectories(
+        torch.stack(z), torch.stack(states), torch.stack(contacts), torch.stack(inputs), torch.stack(live)
+    )

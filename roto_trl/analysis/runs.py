@@ -1,0 +1,109 @@
+"""Finding run directories and aggregating their logs across seeds."""
+
+from __future__ import annotations
+
+import glob
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from omegaconf import OmegaConf
+
+from roto_trl.loggers import read_csv
+
+
+@dataclass
+class Run:
+    """A run directory of ``train.py`` and what it was."""
+
+    path: Path
+    exp_name: str
+    task: str
+    seed: int
+    config: dict
+
+    @property
+    def label(self) -> str:
+        return f"{self.exp_name}/{self.path.name}"
+
+
+def find_runs(patterns: list[str]) -> list[Run]:
+    """Run directories matching ``patterns`` (paths or globs), in sorted order.
+
+    Raises ``ValueError`` naming the patterns when nothing matches, or a match is not a run.
+    """
+    paths: list[Path] = []
+    for pattern in patterns:
+        matched = sorted(Path(p) for p in glob.glob(pattern)) or (
+            [Path(pattern)] if Path(pattern).exists() else []
+        )
+        if not matched:
+            raise ValueError(f"no run directories match {pattern!r}; give run directories or a quoted glob")
+        paths += [p for p in matched if p not in paths]
+    runs = []
+    for path in paths:
+        if not (path / "config.yaml").is_file():
+            raise ValueError(f"{path} is not a run directory of train.py (no config.yaml)")
+        cfg = OmegaConf.to_container(OmegaConf.load(path / "config.yaml"))
+        runs.append(Run(path, cfg["exp_name"], cfg["env"]["task"], int(cfg["seed"]), cfg))
+    return runs
+
+
+def one_task(runs: list[Run], command: str) -> str:
+    """The task all ``runs`` share, or a ``ValueError`` listing the mix."""
+    tasks = sorted({r.task for r in runs})
+    if len(tasks) != 1:
+        raise ValueError(f"{command} compares runs of one task; these mix {tasks}: give runs of one task")
+    return tasks[0]
+
+
+def by_experiment(runs: list[Run]) -> dict[str, list[Run]]:
+    """Runs grouped by ``exp_name``, experiments in first-seen order."""
+    groups: dict[str, list[Run]] = {}
+    for run in runs:
+        groups.setdefault(run.exp_name, []).append(run)
+    return groups
+
+
+@dataclass
+class Curve:
+    """Evaluation return of one experiment across seeds on a common frame grid."""
+
+    frames: np.ndarray  # [F]
+    mean: np.ndarray  # [F]
+    std: np.ndarray  # [F]
+    seeds: int
+
+
+def learning_curve(runs: list[Run]) -> Curve:
+    """Mean ± 1 std (across runs) of the evaluation return against frames.
+
+    Each run's ``eval.csv`` is linearly interpolated onto the union of all runs' evaluation
+    frames, up to the shortest run's last evaluation, so every point averages every seed.
+    """
+    series = []
+    for run in runs:
+        path = run.path / "eval.csv"
+        if not path.is_file():
+            raise ValueError(f"{run.path} has no eval.csv yet; give finished (or running) runs")
+        ev = read_csv(path)
+        series.append((np.asarray(ev["frames"]), np.asarray(ev["return_mean"])))
+    end = min(frames[-1] for frames, _ in series)
+    grid = np.unique(np.concatenate([frames[frames <= end] for frames, _ in series]))
+    values = np.stack([np.interp(grid, frames, returns) for frames, returns in series])
+    return Curve(grid, values.mean(0), values.std(0), len(runs))
+
+
+def physical_metrics(runs: list[Run]) -> dict[str, np.ndarray]:
+    """``metric -> [seeds]`` from each run's ``eval.json`` (``roto_trl/evaluate.py``), with the
+    evaluation return as ``return``; runs not yet evaluated raise a ``ValueError`` naming the fix."""
+    values: dict[str, list[float]] = {}
+    for run in runs:
+        path = run.path / "eval.json"
+        if not path.is_file():
+            raise ValueError(f"{run.path} has no eval.json; run: python roto_trl/evaluate.py run={run.path}")
+        result = json.loads(path.read_text())
+        for name, value in {"return": result["return_mean"], **result["physical"]}.items():
+            values.setdefault(name, []).append(float(value))
+    return {name: np.asarray(v) for name, v in values.items()}

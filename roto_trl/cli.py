@@ -1,0 +1,31 @@
+"""``key=value`` command lines for the small tools (record, evaluate), with one-line errors."""
+
+from __future__ import annotations
+
+from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import ConfigKeyError
+
+
+def parse_key_values(prog: str, argv: list[str], defaults: dict, example: str) -> DictConfig:
+    """``argv`` (``key=value`` each) merged over ``defaults``.
+
+    A default of ``"???"`` is required; a dict-valued default (e.g. ``env``) takes any sub-key
+    (``env.episode_steps=100``), which its consumer checks. Bad input exits with one line naming
+    the problem and ``example``.
+    """
+    bad = [a for a in argv if "=" not in a]
+    if bad:
+        raise SystemExit(f"{prog}: arguments are key=value, got {bad}; e.g. {example}")
+    cfg = OmegaConf.create(defaults)
+    OmegaConf.set_struct(cfg, True)
+    for key, value in defaults.items():
+        if isinstance(value, dict):
+            OmegaConf.set_struct(cfg[key], False)
+    try:
+        cfg = OmegaConf.merge(cfg, OmegaConf.from_dotlist(argv))
+    except ConfigKeyError as err:
+        raise SystemExit(f"{prog}: unknown key {err.key!r}; valid: {sorted(defaults)}") from None
+    missing = [key for key in defaults if OmegaConf.is_missing(cfg, key)]
+    if missing:
+        raise SystemExit(f"{prog}: give {' '.join(k + '=...' for k in missing)}; e.g. {example}")
+    return cfg
