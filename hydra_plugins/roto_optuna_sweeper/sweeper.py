@@ -1,0 +1,52 @@
+"""The plugin class Hydra instantiates for ``hydra/sweeper=optuna``; the work is in ``_study``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from hydra.plugins.sweeper import Sweeper
+from hydra.types import HydraContext, TaskFunction
+from omegaconf import DictConfig
+
+from hydra_plugins.roto_optuna_sweeper.config import OptunaSweeperConf
+
+
+class OptunaSweeper(Sweeper):
+    """Runs trials of an Optuna study (TPE, maximising the task's return value) one at a time.
+
+    Args (``hydra.sweeper.<key>``, defaults in ``config.OptunaSweeperConf``):
+        params: search space, ``key: sweep`` in Hydra's syntax: ``choice(a, b)``, ``a,b``,
+            ``interval(lo, hi)``, ``range(start, stop[, step])``, each optionally inside
+            ``tag(log, ...)``; ``tag(int, interval(...))`` samples integers. Sweeps given on the
+            command line join the space; plain ``key=value`` arguments are passed to every trial.
+        n_trials: the study ends when it holds this many COMPLETE trials, counted over every
+            worker and earlier (resumed) sweeps; failed trials do not count.
+        n_startup_trials, seed: TPE's random start-up trials and its seed (null: fresh entropy;
+            a set seed is offset by the study's trial count, so a resumed sweep does not replay
+            its first proposals).
+        study_name, storage: the study (default: the sweep directory's name) and where it lives
+            (default ``sqlite:///<sweep dir>/study.db``; any SQLAlchemy URL; ``journal://<file>``).
+        max_failures: stop after this many failed trials in a row (a broken config never loops).
+        heartbeat_interval, grace_period: liveness of running trials on RDB storages (seconds).
+    """
+
+    def __init__(self, **conf: Any) -> None:
+        params = conf.pop("params", None) or {}
+        self.conf = OptunaSweeperConf(params={str(k): str(v) for k, v in params.items()}, **conf)
+        self.hydra_context: HydraContext | None = None
+        self.config: DictConfig | None = None
+        self.launcher = None
+
+    def setup(self, *, hydra_context: HydraContext, task_function: TaskFunction, config: DictConfig) -> None:
+        from hydra.core.plugins import Plugins
+
+        self.hydra_context = hydra_context
+        self.config = config
+        self.launcher = Plugins.instance().instantiate_launcher(
+            hydra_context=hydra_context, task_function=task_function, config=config
+        )
+
+    def sweep(self, arguments: list[str]) -> None:
+        from hydra_plugins.roto_optuna_sweeper._study import run_sweep
+
+        run_sweep(self, arguments)
