@@ -62,19 +62,18 @@ def cmd_curves(runs: list[Run], out: Path, args) -> list[Path]:
     fig, ax = plt.subplots(figsize=(6.5, 4))
     rows = []
     for exp, members in groups.items():
-        curve = learning_curve(members)
-        ax.plot(curve.frames, curve.mean, label=f"{exp} ({curve.seeds} seeds)")
-        ax.fill_between(curve.frames, curve.mean - curve.std, curve.mean + curve.std, alpha=0.25)
-        rows += [
-            [exp, int(f), m, s, curve.seeds]
-            for f, m, s in zip(curve.frames, curve.mean, curve.std, strict=True)
-        ]
-    ax.set(xlabel="env steps (frames)", ylabel="evaluation return", title="evaluation return (mean ± 1 std)")
+        curve = learning_curve(members, args.x)
+        ax.plot(curve.x, curve.mean, label=f"{exp} ({curve.seeds} seeds)")
+        ax.fill_between(curve.x, curve.mean - curve.std, curve.mean + curve.std, alpha=0.25)
+        xs = curve.x.astype(int) if args.x == "frames" else curve.x
+        rows += [[exp, x, m, s, curve.seeds] for x, m, s in zip(xs, curve.mean, curve.std, strict=True)]
+    xlabel = "env steps (frames)" if args.x == "frames" else "training wall time (minutes)"
+    ax.set(xlabel=xlabel, ylabel="evaluation return", title="evaluation return (mean ± 1 std)")
     ax.legend()
-    written = [save(fig, out / "curves.png")]
-    written.append(
-        write_csv(out / "curves.csv", ["exp_name", "frames", "return_mean", "return_std", "seeds"], rows)
-    )
+    name = "curves" if args.x == "frames" else "curves-minutes"
+    written = [save(fig, out / f"{name}.png")]
+    header = ["exp_name", args.x, "return_mean", "return_std", "seeds"]
+    written.append(write_csv(out / f"{name}.csv", header, rows))
 
     if args.no_physical:
         return written
@@ -127,10 +126,11 @@ def cmd_mi(runs: list[Run], out: Path, args) -> list[Path]:
         pick = rng.choice(len(z), args.samples, replace=False)
         joint, marginal = latent_state_information(z[pick], s[pick], args.pca, args.k, args.seed)
         results[run.label] = (joint, marginal)
+        names = traj.state_names
         print(f"{run.label}: I(z; s) = {joint:.3f} nats")
     labels = list(results)
     width = 0.8 / len(labels)
-    n_state = len(next(iter(results.values()))[1])
+    n_state = len(names)
     fig, (ax0, ax1) = plt.subplots(
         1, 2, figsize=(3 + 0.5 * n_state + 2, 3.8), gridspec_kw={"width_ratios": [1, 3]}
     )
@@ -139,11 +139,11 @@ def cmd_mi(runs: list[Run], out: Path, args) -> list[Path]:
     ax0.set(title="I(z; s)", ylabel="nats")
     for i, label in enumerate(labels):
         ax1.bar(np.arange(n_state) + i * width, results[label][1], width, label=label, color=f"C{i}")
-    ax1.set(title="I(z; s_j) per state element", xlabel="state element j", ylabel="nats")
-    ax1.set_xticks(np.arange(n_state) + 0.4 - width / 2, [str(j) for j in range(n_state)])
+    ax1.set(title="I(z; s_j) per state element", ylabel="nats")
+    ax1.set_xticks(np.arange(n_state) + 0.4 - width / 2, names, rotation=60, ha="right", fontsize=8)
     ax1.legend(fontsize=7)
     rows = [[label, "joint", results[label][0]] for label in labels]
-    rows += [[label, f"s_{j}", v] for label in labels for j, v in enumerate(results[label][1])]
+    rows += [[label, name, v] for label in labels for name, v in zip(names, results[label][1], strict=True)]
     return [save(fig, out / "mi.png"), write_csv(out / "mi.csv", ["run", "state", "mi_nats"], rows)]
 
 
@@ -311,6 +311,7 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             p.add_argument(
                 "--no-physical", action="store_true", help="skip the physical-metric bars (no eval.json)"
             )
+            p.add_argument("--x", choices=["frames", "minutes"], default="frames", help="curves against")
         if name == "mi":
             p.add_argument("--samples", type=int, default=5000, help="(z, s) pairs, drawn from all steps")
             p.add_argument("--pca", type=int, default=13, help="principal components of z")

@@ -64,6 +64,14 @@ def test_physical_metrics_per_task_by_hand():
         env.close()
 
 
+@pytest.mark.parametrize("task", ["find", "bounce", "baoding"])
+def test_state_names_label_every_state_element(task):
+    env = make_env(task, 2)
+    names = env.base_env.STATE_NAMES
+    assert len(set(names)) == len(names) == env.observation_spec["state"].shape[-1]
+    env.close()
+
+
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     """Tiny trained runs: two TFD seeds and one PPO run on Bounce, one PPO run on Find."""
@@ -158,6 +166,7 @@ def test_mi_latent_tactile_and_aux_memory_write_figures_and_numbers(runs, tmp_pa
     rows = table(tmp_path / "mi.csv")
     assert len(rows) == 2 * (1 + 14)  # joint + one per Bounce state element, for both agents
     assert all(np.isfinite(float(r["mi_nats"])) for r in rows)
+    assert [r["state"] for r in rows[:3]] == ["joint", "joint", "ball_x"]
     latent = analyse.main(["latent", str(runs["tfd0"]), "--out", str(tmp_path)])
     assert len(table(latent[1])) == 40 and {"pc1", "pc2", "contacts"} <= set(table(latent[1])[0])
     tactile = analyse.main(["tactile", str(runs["tfd0"]), "--steps", "30", "--out", str(tmp_path)])
@@ -168,7 +177,12 @@ def test_mi_latent_tactile_and_aux_memory_write_figures_and_numbers(runs, tmp_pa
     assert {"tpr_h1", "fpr_h3", "precision_h2"} <= metrics
     memory = analyse.main(["aux-memory", str(runs["tfd0"]), str(runs["tfd1"]), "--out", str(tmp_path)])
     assert len(table(memory[1])) == 2 * len(table(runs["tfd0"] / "aux.csv"))
-    for path in [*mi, *latent, *tactile, *memory]:
+    minutes = analyse.main(
+        ["curves", str(runs["tfd0"]), "--x", "minutes", "--no-physical", "--out", str(tmp_path)]
+    )
+    at = [float(r["minutes"]) for r in table(minutes[1])]
+    assert len(at) == 3 and at[0] == 0.0 and at[1] < at[2]  # eval times rise from the start
+    for path in [*mi, *latent, *tactile, *memory, *minutes]:
         assert path.stat().st_size > 0
 
 

@@ -26,6 +26,7 @@ class Trajectories:
         contacts: ``[T, E, C]`` 0/1, the current tactile reading (the newest of the frame history).
         inputs: ``[T, E]`` the encoder's observation entries and the ``action`` taken.
         live: ``[T, E]`` bool, the step belongs to the world's first episode.
+        state_names: the name of each state element (the task's ``STATE_NAMES``).
     """
 
     z: torch.Tensor
@@ -33,6 +34,7 @@ class Trajectories:
     contacts: torch.Tensor
     inputs: TensorDict
     live: torch.Tensor
+    state_names: tuple[str, ...]
 
 
 @torch.no_grad()
@@ -55,7 +57,7 @@ def collect(
     env = make_eval_env(cfg, worlds)
     try:
         agent = agent_from_checkpoint(state, env)
-        n_contacts = len(env.base_env.SENSORS)
+        n_contacts, state_names = len(env.base_env.SENSORS), env.base_env.STATE_NAMES
         steps = (
             env.base_env.max_episode_steps
             if max_steps is None
@@ -82,5 +84,10 @@ def collect(
     finally:
         env.close()
     return agent, Trajectories(
-        torch.stack(z), torch.stack(states), torch.stack(contacts), torch.stack(inputs), torch.stack(live)
+        torch.stack(z),
+        torch.stack(states),
+        torch.stack(contacts),
+        torch.stack(inputs),
+        torch.stack(live),
+        state_names,
     )

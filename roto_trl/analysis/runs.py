@@ -68,19 +68,29 @@ def by_experiment(runs: list[Run]) -> dict[str, list[Run]]:
 
 @dataclass
 class Curve:
-    """Evaluation return of one experiment across seeds on a common frame grid."""
+    """Evaluation return of one experiment across seeds on a common grid of frames or minutes."""
 
-    frames: np.ndarray  # [F]
+    x: np.ndarray  # [F] frames, or minutes of training wall time
     mean: np.ndarray  # [F]
     std: np.ndarray  # [F]
     seeds: int
 
 
-def learning_curve(runs: list[Run]) -> Curve:
-    """Mean ± 1 std (across runs) of the evaluation return against frames.
+def eval_minutes(run: Run, frames: np.ndarray) -> np.ndarray:
+    """Training wall time (minutes) at which the run had collected ``frames``, from ``train.csv``."""
+    train = read_csv(run.path / "train.csv")
+    at = np.concatenate([[0.0], train["frames"]])
+    wall = np.concatenate([[0.0], train["wall_time"]]) / 60.0
+    return np.interp(frames, at, wall)
 
-    Each run's ``eval.csv`` is linearly interpolated onto the union of all runs' evaluation
-    frames, up to the shortest run's last evaluation, so every point averages every seed.
+
+def learning_curve(runs: list[Run], x: str = "frames") -> Curve:
+    """Mean ± 1 std (across runs) of the evaluation return against frames or wall time.
+
+    ``x`` is ``"frames"`` or ``"minutes"`` (training wall time, its evaluations included, for
+    comparisons at an equal time budget). Each run's ``eval.csv`` is linearly interpolated onto
+    the union of all runs' evaluation points, up to the shortest run's last evaluation, so every
+    point averages every seed.
     """
     series = []
     for run in runs:
@@ -88,10 +98,11 @@ def learning_curve(runs: list[Run]) -> Curve:
         if not path.is_file():
             raise ValueError(f"{run.path} has no eval.csv yet; give finished (or running) runs")
         ev = read_csv(path)
-        series.append((np.asarray(ev["frames"]), np.asarray(ev["return_mean"])))
-    end = min(frames[-1] for frames, _ in series)
-    grid = np.unique(np.concatenate([frames[frames <= end] for frames, _ in series]))
-    values = np.stack([np.interp(grid, frames, returns) for frames, returns in series])
+        frames = np.asarray(ev["frames"])
+        series.append((frames if x == "frames" else eval_minutes(run, frames), np.asarray(ev["return_mean"])))
+    end = min(points[-1] for points, _ in series)
+    grid = np.unique(np.concatenate([points[points <= end] for points, _ in series]))
+    values = np.stack([np.interp(grid, points, returns) for points, returns in series])
     return Curve(grid, values.mean(0), values.std(0), len(runs))
 
 

@@ -29,7 +29,13 @@ DIST_REWARD_LENGTH = 0.1
 MAX_BALL_SEPARATION = 0.15
 MAX_DIST_FROM_HAND = 0.10
 REWARD_SCALES = {"dist_a": 0.1, "dist_b": 0.1, "rotation": 10.0, "fall": 10.0}
-STATE_SIZE = 13  # positions 3 + 3, linear velocities 3 + 3, distance between the balls 1
+# the privileged state (never an agent input; the mutual-information analysis reads it), in order
+STATE_NAMES = (
+    *("a_x", "a_y", "a_z", "b_x", "b_y", "b_z"),  # ball positions
+    *("a_vx", "a_vy", "a_vz", "b_vx", "b_vy", "b_vz"),  # linear velocities
+    "ball_distance",
+)
+STATE_SIZE = len(STATE_NAMES)
 
 
 def swap_targets(
@@ -73,6 +79,7 @@ class BaodingEnv(ShadowHandEnv):
     SCENE = SCENE
     CONFIG = BaodingConfig
     METRICS = ("rotations",)  # episode metrics reported in every step's output
+    STATE_NAMES = STATE_NAMES
 
     def __init__(self, num_envs: int, config: BaodingConfig | None = None, **kwargs):
         super().__init__(num_envs, config, **kwargs)

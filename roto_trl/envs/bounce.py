@@ -28,7 +28,16 @@ FALL_CENTRE = BALL_REST
 FALL_RADIUS = 0.24
 BOUNCE_MIN_FREE_STEPS = 5
 REWARD_SCALES = {"air": 0.01, "bounce": 10.0, "fall": 10.0}
-STATE_SIZE = 14  # ball position 3, quaternion 4, linear velocity 3, angular velocity 3, free steps 1
+# the privileged state (never an agent input; the mutual-information analysis reads it), in order:
+# ball position, quaternion (w, x, y, z), linear velocity (world), angular velocity (body), free steps
+STATE_NAMES = (
+    *("ball_x", "ball_y", "ball_z"),
+    *("ball_qw", "ball_qx", "ball_qy", "ball_qz"),
+    *("ball_vx", "ball_vy", "ball_vz"),
+    *("ball_wx", "ball_wy", "ball_wz"),
+    "free_steps",
+)
+STATE_SIZE = len(STATE_NAMES)
 
 
 def count_bounces(
@@ -59,6 +68,7 @@ class BounceEnv(ShadowHandEnv):
     SCENE = SCENE
     CONFIG = BounceConfig
     METRICS = ("bounces",)  # episode metrics reported in every step's output
+    STATE_NAMES = STATE_NAMES
 
     def __init__(self, num_envs: int, config: BounceConfig | None = None, **kwargs):
         super().__init__(num_envs, config, **kwargs)

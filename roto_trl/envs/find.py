@@ -49,7 +49,9 @@ FINGER_PADS = ("left_pad", "right_pad")
 # Pads: 1.6 x 50 mm x 2 mm plates on the inner surface of each finger, from 4 to 9 cm along it.
 PAD_HALF_SIZE = (0.008, 0.001, 0.025)
 PAD_POS = {"panda0_leftfinger": (0.0, -0.002, 0.065), "panda0_rightfinger": (0.0, 0.002, 0.065)}
-STATE_SIZE = 6  # sphere centre 3, end-effector position 3
+# the privileged state (never an agent input; the mutual-information analysis reads it), in order
+STATE_NAMES = ("sphere_x", "sphere_y", "sphere_z", "ee_x", "ee_y", "ee_z")
+STATE_SIZE = len(STATE_NAMES)
 
 
 def first_times(
@@ -122,6 +124,7 @@ class FindEnv(RobotTaskEnv):
     VEL_SCALE = 0.33
     PROP_EXTRA = ("ee_pos", "ee_quat", "gripper_width")
     METRICS = ("object_distance", "find_time")
+    STATE_NAMES = STATE_NAMES
     CONFIG = FindConfig
 
     def __init__(self, num_envs: int, config: FindConfig | None = None, **kwargs):

@@ -98,6 +98,7 @@ class RobotTaskEnv(BatchedMujocoEnv):
         VEL_SCALE: factor on joint velocities in the policy input.
         PROP_EXTRA: entries appended to the proprioception after last action, angles, velocities.
         METRICS: episode metrics reported in every step's output.
+        STATE_NAMES: the elements of the privileged ``state`` output, in order.
         CONFIG: the task's config dataclass.
     """
 
@@ -109,6 +110,7 @@ class RobotTaskEnv(BatchedMujocoEnv):
     VEL_SCALE: ClassVar[float]
     PROP_EXTRA: ClassVar[tuple[str, ...]] = ()
     METRICS: ClassVar[tuple[str, ...]]
+    STATE_NAMES: ClassVar[tuple[str, ...]]
     CONFIG: ClassVar[type[TaskConfig]]
 
     def __init__(self, num_envs: int, config: TaskConfig | None = None, *, seed: int = 0, device="cpu"):
