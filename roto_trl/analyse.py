@@ -29,7 +29,15 @@ from omegaconf import OmegaConf
 
 from roto_trl.analysis.mutual_information import latent_state_information, pca
 from roto_trl.analysis.rollouts import collect
-from roto_trl.analysis.runs import Run, by_experiment, find_runs, learning_curve, one_task, physical_metrics
+from roto_trl.analysis.runs import (
+    Run,
+    by_experiment,
+    find_runs,
+    learning_curve,
+    one_task,
+    physical_metrics,
+    run_csv,
+)
 from roto_trl.builders import eval_seed, make_aux_update, make_eval_env
 from roto_trl.evaluate import load_run
 from roto_trl.loggers import read_csv
@@ -264,10 +272,7 @@ def cmd_aux_memory(runs: list[Run], out: Path, args) -> list[Path]:
     fig, ax = plt.subplots(figsize=(8, 4))
     rows = []
     for run in runs:
-        path = run.path / "aux.csv"
-        if not path.is_file():
-            raise ValueError(f"{run.path} has no aux.csv; aux-memory needs runs with an SSL objective")
-        aux = read_csv(path)
+        aux = run_csv(run, "aux.csv", "aux-memory needs runs with an SSL objective")
         terms = [k for k in aux if k.startswith("loss_")]
         loss = np.sum([np.asarray(aux[k]) for k in terms], axis=0)
         memory = run.config["ssl"]["memory_rollouts"]

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import optuna
 import pytest
+from helpers import TINY
 from hydra import compose, initialize_config_dir
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
@@ -30,23 +31,7 @@ from roto_trl.train import run_objective
 TRAIN = [sys.executable, str(Path(__file__).resolve().parent.parent / "roto_trl" / "train.py")]
 # A sweep of tiny trials (a few seconds each): PPO's space with R, mb, le and c_ent fixed on the
 # command line, so that only agent.lr is searched.
-TINY_SWEEP = [
-    "-m",
-    "+exp=find_ppo",
-    "hparams_search=ppo",
-    "+profile=smoke",
-    "env.num_envs=8",
-    "agent.rollout_len=16",
-    "agent.minibatches=2",
-    "agent.epochs=2",
-    "agent.entropy_coeff=0",
-    "total_frames=256",
-    "eval.num_envs=2",
-    "+env.overrides.episode_steps=40",
-    "progress=false",
-    "torch_threads=1",
-    "logger=csv",
-]
+TINY_SWEEP = ["-m", "+exp=find_ppo", "hparams_search=ppo", *TINY, "agent.entropy_coeff=0"]
 LOG_LR = FloatDistribution(1e-5, 1e-3, log=True)
 PPO_SPACE = {
     "agent.rollout_len": CategoricalDistribution([16, 32, 64]),

@@ -50,6 +50,14 @@ def find_runs(patterns: list[str]) -> list[Run]:
     return runs
 
 
+def run_csv(run: Run, name: str, needs: str) -> dict[str, list[float]]:
+    """The columns of one of the run's CSV files, or a ``ValueError`` saying what ``needs`` it."""
+    path = run.path / name
+    if not path.is_file():
+        raise ValueError(f"{run.path} has no {name}; {needs}")
+    return read_csv(path)
+
+
 def one_task(runs: list[Run], command: str) -> str:
     """The task all ``runs`` share, or a ``ValueError`` listing the mix."""
     tasks = sorted({r.task for r in runs})
@@ -94,10 +102,7 @@ def learning_curve(runs: list[Run], x: str = "frames") -> Curve:
     """
     series = []
     for run in runs:
-        path = run.path / "eval.csv"
-        if not path.is_file():
-            raise ValueError(f"{run.path} has no eval.csv yet; give finished (or running) runs")
-        ev = read_csv(path)
+        ev = run_csv(run, "eval.csv", "curves need runs that have evaluated at least once")
         frames = np.asarray(ev["frames"])
         series.append((frames if x == "frames" else eval_minutes(run, frames), np.asarray(ev["return_mean"])))
     end = min(points[-1] for points, _ in series)
