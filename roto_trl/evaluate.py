@@ -41,7 +41,7 @@ def load_run(run_dir: Path, checkpoint: str = "best") -> tuple[DictConfig, dict[
     """A run's config, the chosen checkpoint's state and its path.
 
     Raises ``FileNotFoundError`` for a missing run or checkpoint and ``ValueError`` for a
-    checkpoint of another task, each naming the fix.
+    checkpoint of another task or other observations, each naming the fix.
     """
     run_dir = Path(run_dir)
     if not (run_dir / "config.yaml").is_file():
@@ -51,11 +51,18 @@ def load_run(run_dir: Path, checkpoint: str = "best") -> tuple[DictConfig, dict[
     cfg = OmegaConf.load(run_dir / "config.yaml")
     path = run_dir / "checkpoints" / NAMED[checkpoint] if checkpoint in NAMED else Path(checkpoint)
     state = load_checkpoint(path)
-    trained_on = state["config"]["env"]["task"]
-    if trained_on != cfg.env.task:
+    trained = state["config"]["env"]
+    if trained["task"] != cfg.env.task:
         raise ValueError(
-            f"checkpoint {path} was trained on {trained_on!r} but run {run_dir} is {cfg.env.task!r}; "
+            f"checkpoint {path} was trained on {trained['task']!r} but run {run_dir} is {cfg.env.task!r}; "
             "give a checkpoint of this run's task"
+        )
+    inputs = (list(trained["obs_keys"]), bool(trained["last_action"]))
+    if inputs != (list(cfg.env.obs_keys), bool(cfg.env.last_action)):
+        raise ValueError(
+            f"checkpoint {path} sees obs_keys={inputs[0]}, last_action={inputs[1]} but run {run_dir} "
+            f"sees obs_keys={list(cfg.env.obs_keys)}, last_action={cfg.env.last_action}; "
+            "give a checkpoint of this run's experiment"
         )
     return cfg, state, path
 

@@ -127,6 +127,16 @@ def test_evaluate_rejects_missing_and_foreign_checkpoints(runs, tmp_path):
     foreign = runs["find"] / "checkpoints" / "best.pt"
     with pytest.raises(SystemExit, match=r"trained on 'find' but run .* is 'bounce'"):
         evaluate.main([f"run={runs['ppo0']}", f"checkpoint={foreign}"])
+    state = torch.load(runs["ppo0"] / "checkpoints" / "best.pt", weights_only=False)
+    state["config"]["env"]["obs_keys"] = ["prop"]  # a proprioception-only agent's checkpoint
+    torch.save(state, tmp_path / "prop.pt")
+    with pytest.raises(SystemExit, match=r"sees obs_keys=\['prop'\], last_action=True but run"):
+        evaluate.main([f"run={runs['ppo0']}", f"checkpoint={tmp_path / 'prop.pt'}"])
+    state["config"]["env"]["obs_keys"] = ["prop", "tactile"]
+    state["agent"]["encoder.net.0.weight"] = state["agent"]["encoder.net.0.weight"][:, :10]  # other sizes
+    torch.save(state, tmp_path / "sizes.pt")
+    with pytest.raises(SystemExit, match="does not fit this env's observations"):
+        evaluate.main([f"run={runs['ppo0']}", f"checkpoint={tmp_path / 'sizes.pt'}"])
     with pytest.raises(SystemExit, match=r"give run=\.\.\."):
         evaluate.main([])
 
