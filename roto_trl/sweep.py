@@ -3,6 +3,7 @@
     python -m roto_trl.sweep summary sweeps/bounce_fd-dynamics     # summary.md + PNG plots there
     python -m roto_trl.sweep best sweeps/bounce_fd-dynamics        # conf/exp/<name>.yaml, 5 seeds
     python -m roto_trl.sweep best sweeps/bounce_fd-dynamics --name bounce_fd_tuned --seeds 3 --run
+    python -m roto_trl.sweep best sweeps/find_ppo-ppo --run +profile=quickstart  # at the sweep's budget
     python -m roto_trl.sweep summary DIR --storage postgresql://user:pw@host/db --study bounce_fd-dynamics
 
 A sweep is ``python roto_trl/train.py -m +exp=<exp> hparams_search=<space>`` (the Optuna sweeper
@@ -342,7 +343,11 @@ def main(argv: list[str] | None = None) -> int:
     commands = parser.add_subparsers(dest="command", required=True)
     for command, text in (
         ("summary", "write summary.md and PNG plots of the study into the sweep directory"),
-        ("best", "write the best trial as conf/exp/<name>.yaml and print (or --run) its seeds"),
+        (
+            "best",
+            "write the best trial as conf/exp/<name>.yaml and print (or --run) its seeds; trailing "
+            "key=value arguments join that command (e.g. the sweep's budget: +profile=quickstart)",
+        ),
     ):
         sub = commands.add_parser(command, help=text, description=text)
         sub.add_argument("sweep_dir", type=Path, help="the sweep directory (sweeps/<exp_name>-<space>)")
@@ -360,7 +365,10 @@ def main(argv: list[str] | None = None) -> int:
                 help="write <conf-dir>/exp/<name>.yaml (default: the conf/ train.py reads; another one "
                 "joins the command through hydra.searchpath)",
             )
-    args = parser.parse_args(argv)
+    args, overrides = parser.parse_known_args(argv)
+    unknown = [a for a in overrides if args.command != "best" or "=" not in a or a.startswith("-")]
+    if unknown:
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     try:
         study = load_study(args.sweep_dir, args.storage, args.study)
@@ -384,6 +392,7 @@ def main(argv: list[str] | None = None) -> int:
     ]
     if Path(args.conf_dir).resolve() != resource_dir("conf").resolve():
         command.append(f"hydra.searchpath=[file://{Path(args.conf_dir).resolve()}]")
+    command += overrides
     print("run it:", shlex.join(command))
     return subprocess.run(command, check=False).returncode if args.run else 0
 

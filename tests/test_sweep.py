@@ -171,6 +171,8 @@ def test_tiny_sweep_survives_a_nan_trial_and_writes_the_best_config(tmp_path, ca
     assert cfg.agent.lr == study.best_params["agent.lr"] and cfg.env.overrides.reward_scales.dist == 1.0
     with pytest.raises(SystemExit, match="exists; pick another --name or pass --force"):
         sweep_main(["best", str(sweep_dir), "--conf-dir", str(conf_dir)])
+    assert sweep_main(["best", str(sweep_dir), "--conf-dir", str(conf_dir), "--force", "+profile=smoke"]) == 0
+    assert capsys.readouterr().out.rstrip().endswith(f"'hydra.searchpath=[file://{conf_dir}]' +profile=smoke")
 
 
 def test_failing_trials_stop_the_sweep_after_max_failures(tmp_path):
