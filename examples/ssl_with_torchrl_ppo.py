@@ -32,7 +32,9 @@ def main(iterations: int = 10, frames: int = 512, seed: int = 0) -> list[dict[st
     params = {id(p): p for p in [*ppo.parameters(), *fd.parameters()]}.values()
     optimizer = torch.optim.Adam(params, lr=3e-4)
     history = []
-    for batch in Collector(env, policy, frames_per_batch=frames, total_frames=frames * iterations):
+    collector = Collector(env, policy, frames_per_batch=frames, total_frames=frames * iterations,
+                          auto_register_policy_transforms=False)  # fmt: skip
+    for batch in collector:
         gae(batch)
         same_episode = ~batch["next", "done"][:-1].squeeze(-1)  # pairs (t, t+1) of one episode
         pairs = torch.stack([batch[:-1], batch[1:]], dim=1)[same_episode]  # [B, n = 2]
@@ -43,7 +45,8 @@ def main(iterations: int = 10, frames: int = 512, seed: int = 0) -> list[dict[st
         total.backward()
         optimizer.step()
         ema.step()
-        history.append({"reward": float(batch["next", "reward"].mean()), "fd": float(aux["loss_dynamics"])})
+        fd_loss = float(aux["loss_dynamics"].detach())
+        history.append({"reward": float(batch["next", "reward"].mean()), "fd": fd_loss})
         print(history[-1])
     return history
 
