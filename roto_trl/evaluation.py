@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from tensordict import TensorDictBase
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
@@ -33,13 +34,25 @@ class Episodes:
 
 @torch.no_grad()
 def run_episodes(
-    env: TransformedEnv, agent: Agent, seed: int, render: Callable[[], np.ndarray] | None = None
+    env: TransformedEnv,
+    agent: Agent,
+    seed: int,
+    render: Callable[[], np.ndarray] | None = None,
+    on_step: Callable[[TensorDictBase, TensorDictBase, torch.Tensor], None] | None = None,
+    max_steps: int | None = None,
 ) -> Episodes:
     """Run one whole episode in every world of ``env`` (physically reset, seeded with ``seed``).
 
     Worlds whose episode ended keep stepping until all have ended; only each world's first
-    episode counts. ``render``, if given, is called after the reset and after every step of
-    world 0's episode (e.g. ``lambda: env.base_env.render(0)``).
+    episode counts.
+
+    Args:
+        render: called after the reset and after every step of world 0's episode (e.g.
+            ``lambda: env.base_env.render(0)``); its frames are returned.
+        on_step: called before each step with the env's output ``[E]`` (the observation the
+            action answers), the policy's output ``[E]`` (encoder inputs, ``z``, ``action``) and
+            ``live`` ``[E]`` bool (the world is still in its first episode).
+        max_steps: stop after this many steps (default: the episode length).
     """
     env.set_seed(seed)
     td = env.reset()
@@ -51,11 +64,19 @@ def run_episodes(
     final = torch.zeros(n, len(columns), device=td.device)
     frames = [render()] if render is not None else []
     keys = agent.obs_keys
+    steps = (
+        env.base_env.max_episode_steps
+        if max_steps is None
+        else min(max_steps, env.base_env.max_episode_steps)
+    )
     with set_exploration_type(ExplorationType.DETERMINISTIC):
-        for _ in range(env.base_env.max_episode_steps):
-            td.set("action", agent.policy(td.select(*keys).clone())["action"])
-            out = env.step(td)["next"]
+        for _ in range(steps):
             live = ~finished
+            decision = agent.policy(td.select(*keys).clone())
+            if on_step is not None:
+                on_step(td, decision, live)
+            td.set("action", decision["action"])
+            out = env.step(td)["next"]
             returns += out["reward"].squeeze(-1) * live
             lengths += live.long()
             if render is not None and bool(live[0]):

@@ -8,11 +8,11 @@ from typing import Any
 
 import torch
 from omegaconf import OmegaConf
-from tensordict import TensorDict
-from torchrl.envs.utils import ExplorationType, set_exploration_type
+from tensordict import TensorDict, TensorDictBase
 
 from roto_trl.builders import make_eval_env
 from roto_trl.checkpoint import agent_from_checkpoint
+from roto_trl.evaluation import run_episodes
 from roto_trl.modules.agent import Agent
 
 
@@ -37,7 +37,6 @@ class Trajectories:
     state_names: tuple[str, ...]
 
 
-@torch.no_grad()
 def collect(
     state: dict[str, Any], worlds: int, seed: int, max_steps: int | None = None
 ) -> tuple[Agent, Trajectories]:
@@ -55,32 +54,19 @@ def collect(
     cfg = OmegaConf.create(state["config"])
     cfg.device = "cpu"
     env = make_eval_env(cfg, worlds)
+    z, states, contacts, inputs, live = [], [], [], [], []
     try:
         agent = agent_from_checkpoint(state, env)
         n_contacts, state_names = len(env.base_env.SENSORS), env.base_env.STATE_NAMES
-        steps = (
-            env.base_env.max_episode_steps
-            if max_steps is None
-            else min(max_steps, env.base_env.max_episode_steps)
-        )
-        env.set_seed(seed)
-        td = env.reset()
-        finished = torch.zeros(worlds, dtype=torch.bool)
-        z, states, contacts, inputs, live = [], [], [], [], []
-        with set_exploration_type(ExplorationType.DETERMINISTIC):
-            for _ in range(steps):
-                td = td.select(*agent.obs_keys, "state", "tactile").clone()
-                agent.policy(td)
-                z.append(td["z"])
-                states.append(td["state"])
-                contacts.append(td["tactile"][:, -n_contacts:])
-                inputs.append(td.select(*agent.obs_keys, "action"))
-                live.append(~finished)
-                out = env.step(td)["next"]
-                finished = finished | out["done"].squeeze(-1)
-                if bool(finished.all()):
-                    break
-                td = out
+
+        def record(obs: TensorDictBase, decision: TensorDictBase, alive: torch.Tensor) -> None:
+            z.append(decision["z"])
+            states.append(obs["state"].clone())
+            contacts.append(obs["tactile"][:, -n_contacts:].clone())
+            inputs.append(decision.select(*agent.obs_keys, "action"))
+            live.append(alive)
+
+        run_episodes(env, agent, seed, on_step=record, max_steps=max_steps)
     finally:
         env.close()
     return agent, Trajectories(
