@@ -19,9 +19,6 @@ import csv
 import sys
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt
 import numpy as np
 import torch
@@ -41,6 +38,7 @@ from roto_trl.analysis.runs import (
 from roto_trl.builders import eval_seed, make_aux_update, make_eval_env
 from roto_trl.evaluate import load_run
 from roto_trl.loggers import read_csv
+from roto_trl.plots import save_figure
 
 CONFUSION = ("tpr", "fpr", "fnr", "tnr", "accuracy", "precision")
 
@@ -50,13 +48,6 @@ def write_csv(path: Path, header: list[str], rows: list[list]) -> Path:
         writer = csv.writer(handle)
         writer.writerow(header)
         writer.writerows(rows)
-    return path
-
-
-def save(fig, path: Path) -> Path:
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path
 
 
@@ -79,7 +70,7 @@ def cmd_curves(runs: list[Run], out: Path, args) -> list[Path]:
     ax.set(xlabel=xlabel, ylabel="evaluation return", title="evaluation return (mean ± 1 std)")
     ax.legend()
     name = "curves" if args.x == "frames" else "curves-minutes"
-    written = [save(fig, out / f"{name}.png")]
+    written = [save_figure(fig, out / f"{name}.png")]
     header = ["exp_name", args.x, "return_mean", "return_std", "seeds"]
     written.append(write_csv(out / f"{name}.csv", header, rows))
 
@@ -102,7 +93,7 @@ def cmd_curves(runs: list[Run], out: Path, args) -> list[Path]:
             for exp, m, mx in zip(groups, means, maxes, strict=True)
         ]
     axes[0, 0].legend()
-    written.append(save(fig, out / "physical.png"))
+    written.append(save_figure(fig, out / "physical.png"))
     written.append(write_csv(out / "physical.csv", ["exp_name", "metric", "mean", "max", "seeds"], rows))
     return written
 
@@ -152,7 +143,7 @@ def cmd_mi(runs: list[Run], out: Path, args) -> list[Path]:
     ax1.legend(fontsize=7)
     rows = [[label, "joint", results[label][0]] for label in labels]
     rows += [[label, name, v] for label in labels for name, v in zip(names, results[label][1], strict=True)]
-    return [save(fig, out / "mi.png"), write_csv(out / "mi.csv", ["run", "state", "mi_nats"], rows)]
+    return [save_figure(fig, out / "mi.png"), write_csv(out / "mi.csv", ["run", "state", "mi_nats"], rows)]
 
 
 def cmd_latent(runs: list[Run], out: Path, args) -> list[Path]:
@@ -174,7 +165,7 @@ def cmd_latent(runs: list[Run], out: Path, args) -> list[Path]:
             ax.set(xlabel=f"PC 1 ({explained[0]:.0%})", ylabel=f"PC 2 ({explained[1]:.0%})")
         fig.suptitle(f"{run.label}: latent trajectory of one episode")
         stem = f"latent-{run.exp_name}-{run.path.name}"
-        written.append(save(fig, out / f"{stem}.png"))
+        written.append(save_figure(fig, out / f"{stem}.png"))
         rows = [[t, scores[t, 0], scores[t, 1], int(contacts[t])] for t in range(steps)]
         written.append(write_csv(out / f"{stem}.csv", ["step", "pc1", "pc2", "contacts"], rows))
     return written
@@ -183,11 +174,13 @@ def cmd_latent(runs: list[Run], out: Path, args) -> list[Path]:
 def cmd_tactile(runs: list[Run], out: Path, args) -> list[Path]:
     """Predicted vs actual contacts over a sequence, and the confusion metrics per horizon."""
     written = []
-    for run in runs:
-        ssl = run.config["ssl"]["name"]
-        if ssl not in ("tr", "tfd"):
-            raise ValueError(f"tactile needs a TR or TFD run (ssl tr/tfd); {run.path} has ssl={ssl}")
+    for run in runs:  # all checked before any is run
+        if run.config["ssl"]["name"] not in ("tr", "tfd"):
+            raise ValueError(
+                f"tactile needs a TR or TFD run (ssl tr/tfd); {run.path} has ssl={run.config['ssl']['name']}"
+            )
     for run, state, agent, traj in agent_runs(runs, args):
+        ssl = run.config["ssl"]["name"]
         cfg = OmegaConf.create(state["config"])
         cfg.device = "cpu"
         env = make_eval_env(cfg, 1)
@@ -205,9 +198,8 @@ def cmd_tactile(runs: list[Run], out: Path, args) -> list[Path]:
             predicted = loss.predict_tactile(windows)[:, 0, -n_contacts:]
             actual, first = traj.contacts[1:steps, 0], 1
         stem = f"tactile-{run.exp_name}-{run.path.name}"
-        written.append(
-            save(contact_map(actual.numpy(), predicted.numpy(), first, run.label, ssl), out / f"{stem}.png")
-        )
+        figure = contact_map(actual.numpy(), predicted.numpy(), first, run.label, ssl)
+        written.append(save_figure(figure, out / f"{stem}.png"))
         rows = [
             [first + t, c, int(actual[t, c]), float(predicted[t, c])]
             for t in range(len(actual))
@@ -259,7 +251,7 @@ def confusion_over_training(run: Run, out: Path) -> list[Path]:
     axes[0].legend(fontsize=7)
     stem = f"tactile-metrics-{run.exp_name}-{run.path.name}"
     return [
-        save(fig, out / f"{stem}.png"),
+        save_figure(fig, out / f"{stem}.png"),
         write_csv(out / f"{stem}.csv", ["metric", "frames", "mean"], rows),
     ]
 
@@ -285,7 +277,7 @@ def cmd_aux_memory(runs: list[Run], out: Path, args) -> list[Path]:
     ax.set_title("auxiliary loss per minibatch")
     ax.legend(fontsize=7)
     header = ["run", "memory_rollouts", "step", "frames", "loss"]
-    return [save(fig, out / "aux_memory.png"), write_csv(out / "aux_memory.csv", header, rows)]
+    return [save_figure(fig, out / "aux_memory.png"), write_csv(out / "aux_memory.csv", header, rows)]
 
 
 COMMANDS = {

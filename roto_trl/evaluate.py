@@ -32,6 +32,8 @@ from roto_trl.builders import eval_seed, make_eval_env
 from roto_trl.checkpoint import BEST, LATEST, agent_from_checkpoint, load_checkpoint
 from roto_trl.cli import parse_key_values
 from roto_trl.evaluation import run_episodes
+from roto_trl.record import write_mp4
+from roto_trl.report import write_index
 
 DEFAULTS = {"run": "???", "checkpoint": "best", "episodes": None, "seed": None, "video": False, "out": None}
 NAMED = {"best": BEST, "latest": LATEST}
@@ -109,8 +111,6 @@ def evaluate_run(
     out: Path | None = None,
 ) -> Path:
     """Evaluate one checkpoint of a run, write ``eval.json`` (and the video), refresh ``index.md``."""
-    from roto_trl.report import write_index
-
     run_dir = Path(run_dir)
     cfg, state, path = load_run(run_dir, checkpoint)
     episodes = int(cfg.eval.num_envs if episodes is None else episodes)
@@ -120,8 +120,6 @@ def evaluate_run(
     summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video)
     summary = {"run_dir": str(run_dir.resolve()), "checkpoint": str(path.resolve()), **summary}
     if video:
-        from roto_trl.record import write_mp4
-
         video_path = run_dir / "videos" / f"eval-{path.stem}-s{seed}.mp4"
         video_path.parent.mkdir(exist_ok=True)
         write_mp4(video_path, frames)

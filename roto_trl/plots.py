@@ -15,6 +15,14 @@ from roto_trl.loggers import read_csv
 SKIP = {"frames", "iteration", "return_mean", "return_std", "time"}
 
 
+def save_figure(fig, path: Path, dpi: int = 100) -> Path:
+    """Lay out ``fig``, write it to ``path`` and free it; returns ``path``."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+    return path
+
+
 def plot_run(run_dir: Path) -> list[Path]:
     """Write ``plots/eval.png`` and ``plots/train.png`` for the run; returns the files written."""
     run_dir = Path(run_dir)
@@ -33,10 +41,7 @@ def plot_run(run_dir: Path) -> list[Path]:
         for ax, key in zip(axes[0, 1:], metrics, strict=True):
             ax.plot(x, ev[key], marker="o")
             ax.set(title=f"evaluation {key}", xlabel="frames")
-        fig.tight_layout()
-        fig.savefig(out / "eval.png", dpi=100)
-        plt.close(fig)
-        written.append(out / "eval.png")
+        written.append(save_figure(fig, out / "eval.png"))
     if (run_dir / "train.csv").is_file():
         tr = read_csv(run_dir / "train.csv")
         keys = [k for k in ("reward", "episode_return", "loss_critic", "entropy") if k in tr]
@@ -44,8 +49,5 @@ def plot_run(run_dir: Path) -> list[Path]:
         for ax, key in zip(axes[0], keys, strict=True):
             ax.plot(tr["frames"], tr[key])
             ax.set(title=f"training {key}", xlabel="frames")
-        fig.tight_layout()
-        fig.savefig(out / "train.png", dpi=100)
-        plt.close(fig)
-        written.append(out / "train.png")
+        written.append(save_figure(fig, out / "train.png"))
     return written

@@ -182,11 +182,10 @@ def trial_rows(study: optuna.Study) -> list[str]:
 def plot_study(study: optuna.Study, out_dir: Path, importance: dict[str, float]) -> list[Path]:
     """``history.png`` (objective per trial, best so far), ``params.png`` (objective against each
     parameter) and, when known, ``importance.png``; returns the paths written."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # here: the sweeper plugin imports this module at Hydra's start
     from matplotlib.ticker import MaxNLocator, NullFormatter
+
+    from roto_trl.plots import save_figure  # selects the Agg backend
 
     trials = study.get_trials(deepcopy=False)
     complete = [t for t in trials if t.state == TrialState.COMPLETE]
@@ -203,10 +202,7 @@ def plot_study(study: optuna.Study, out_dir: Path, importance: dict[str, float])
     ax.set(xlabel="trial", ylabel="objective", title=study.study_name)
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.legend()
-    fig.tight_layout()
-    paths.append(out_dir / "history.png")
-    fig.savefig(paths[-1], dpi=100)
-    plt.close(fig)
+    paths.append(save_figure(fig, out_dir / "history.png"))
 
     names = _param_names(complete)
     if names:
@@ -229,19 +225,13 @@ def plot_study(study: optuna.Study, out_dir: Path, importance: dict[str, float])
             ax.set(xlabel=name, ylabel="objective")
         for ax in list(axes.flat)[len(names) :]:
             ax.axis("off")
-        fig.tight_layout()
-        paths.append(out_dir / "params.png")
-        fig.savefig(paths[-1], dpi=100)
-        plt.close(fig)
+        paths.append(save_figure(fig, out_dir / "params.png"))
 
     if importance:
         fig, ax = plt.subplots(figsize=(6, 1.5 + 0.4 * len(importance)))
         ax.barh(list(importance)[::-1], list(importance.values())[::-1])
         ax.set(xlabel="importance (PED-ANOVA)", title=study.study_name)
-        fig.tight_layout()
-        paths.append(out_dir / "importance.png")
-        fig.savefig(paths[-1], dpi=100)
-        plt.close(fig)
+        paths.append(save_figure(fig, out_dir / "importance.png"))
     return paths
 
 

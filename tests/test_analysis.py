@@ -74,10 +74,16 @@ def test_state_names_label_every_state_element(task):
 
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
-    """Tiny trained runs: two TFD seeds and one PPO run on Bounce, one PPO run on Find."""
+    """Tiny trained runs: two TFD seeds, one TR and one PPO run on Bounce, one PPO run on Find."""
     root = tmp_path_factory.mktemp("runs")
     made = {}
-    for name, exp, seed in (("tfd0", "bounce_tfd", 0), ("tfd1", "bounce_tfd", 1), ("ppo0", "bounce_ppo", 0)):
+    bounce = [
+        ("tfd0", "bounce_tfd", 0),
+        ("tfd1", "bounce_tfd", 1),
+        ("tr0", "bounce_tr", 0),
+        ("ppo0", "bounce_ppo", 0),
+    ]
+    for name, exp, seed in bounce:
         short = ["ssl.seq_len=4"] if exp == "bounce_tfd" else []  # TINY's short episodes hold runs of 4
         train(
             compose_cfg(
@@ -143,7 +149,7 @@ def test_evaluate_rejects_missing_and_foreign_checkpoints(runs, tmp_path):
 
 def test_curves_average_seeds_and_chart_physical_metrics(runs, tmp_path):
     written = analyse.main(
-        ["curves", str(runs["tfd0"].parent / "*0"), str(runs["tfd1"]), "--out", str(tmp_path)]
+        ["curves", str(runs["tfd0"].parent / "*[do]0"), str(runs["tfd1"]), "--out", str(tmp_path)]
     )
     assert all(p.stat().st_size > 0 for p in written)
     curves = table(tmp_path / "curves.csv")
@@ -185,6 +191,12 @@ def test_mi_latent_tactile_and_aux_memory_write_figures_and_numbers(runs, tmp_pa
     assert all(0.0 <= float(r["predicted"]) <= 1.0 for r in cells)
     metrics = {r["metric"] for r in table(tactile[3])}
     assert {"tpr_h1", "fpr_h3", "precision_h2"} <= metrics
+    # a TR run beside it: reconstruction of every step's own reading, metrics without horizons
+    both = analyse.main(
+        ["tactile", str(runs["tr0"]), str(runs["tfd0"]), "--steps", "30", "--out", str(tmp_path)]
+    )
+    assert len(table(both[1])) == 30 * 17 and len(table(both[5])) == 29 * 17
+    assert {"tpr", "precision"} <= {r["metric"] for r in table(both[3])}
     memory = analyse.main(["aux-memory", str(runs["tfd0"]), str(runs["tfd1"]), "--out", str(tmp_path)])
     assert len(table(memory[1])) == 2 * len(table(runs["tfd0"] / "aux.csv"))
     minutes = analyse.main(
