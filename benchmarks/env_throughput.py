@@ -28,7 +28,7 @@ from mujoco import rollout as mj_rollout
 
 from roto_trl import TASKS, make_env
 from roto_trl.envs.batched_mujoco import FULL_PHYSICS
-from roto_trl.registration import ENV_IDS
+from roto_trl.envs.registration import ENV_IDS
 
 
 class RawRollout:

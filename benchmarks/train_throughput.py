@@ -21,7 +21,7 @@ import time
 import torch
 from hydra import compose, initialize_config_dir
 
-from roto_trl.builders import (
+from roto_trl.trainers.builders import (
     agent_for_env,
     make_advantage,
     make_aux_update,
@@ -31,8 +31,8 @@ from roto_trl.builders import (
     make_rollout_buffer,
     make_train_env,
 )
-from roto_trl.resources import resource_dir
-from roto_trl.train import ppo_update, store_rollout
+from roto_trl.trainers.ppo import ppo_update, store_rollout
+from roto_trl.utils.resources import resource_dir
 
 
 def sim_only(env, steps: int) -> float:

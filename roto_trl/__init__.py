@@ -4,7 +4,7 @@
 the simulator on first use, so a program may still set ``MUJOCO_GL`` after importing the package.
 """
 
-from roto_trl.registration import register_envs
+from roto_trl.envs.registration import register_envs
 
 __version__ = "0.1.0"
 __all__ = ["TASKS", "make_env"]

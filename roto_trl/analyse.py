@@ -24,7 +24,9 @@ import numpy as np
 import torch
 from omegaconf import OmegaConf
 
+from roto_trl.analysis.checkpoint_eval import load_run
 from roto_trl.analysis.mutual_information import latent_state_information, pca
+from roto_trl.analysis.plots import save_figure
 from roto_trl.analysis.rollouts import collect
 from roto_trl.analysis.runs import (
     Run,
@@ -35,10 +37,8 @@ from roto_trl.analysis.runs import (
     physical_metrics,
     run_csv,
 )
-from roto_trl.builders import eval_seed, make_aux_update, make_eval_env
-from roto_trl.evaluate import load_run
-from roto_trl.loggers import read_csv
-from roto_trl.plots import save_figure
+from roto_trl.trainers.builders import eval_seed, make_aux_update, make_eval_env
+from roto_trl.trainers.loggers import read_csv
 
 CONFUSION = ("tpr", "fpr", "fnr", "tnr", "accuracy", "precision")
 

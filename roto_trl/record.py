@@ -22,15 +22,14 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
-import av
-import numpy as np
 import torch
 from omegaconf import DictConfig, OmegaConf
 
-from roto_trl.builders import make_task_env
-from roto_trl.checkpoint import load_checkpoint, policy_from_checkpoint
-from roto_trl.cli import parse_key_values
 from roto_trl.envs.factory import TASKS, make_env
+from roto_trl.trainers.builders import make_task_env
+from roto_trl.trainers.checkpoint import load_checkpoint, policy_from_checkpoint
+from roto_trl.utils.cli import parse_key_values
+from roto_trl.utils.video import write_mp4
 
 DEFAULTS = {
     "task": "???",
@@ -43,7 +42,6 @@ DEFAULTS = {
     "max_steps": None,
     "env": {},
 }
-FPS = 60  # one frame per control step: real time
 
 
 def parse_args(argv: list[str]) -> DictConfig:
@@ -73,19 +71,6 @@ def make_env_and_policy(cfg: DictConfig):
     run_cfg.env.overrides = OmegaConf.merge(run_cfg.env.overrides, cfg.env)
     env = make_task_env(run_cfg, 1, int(cfg.seed))
     return env, policy_from_checkpoint(state, env)
-
-
-def write_mp4(path: Path, frames: list[np.ndarray], fps: int = FPS) -> None:
-    """Encode RGB frames ``[H, W, 3]`` uint8 as H.264 in ``path``."""
-    height, width = frames[0].shape[:2]
-    with av.open(str(path), mode="w") as container:
-        stream = container.add_stream("libx264", rate=fps)
-        stream.width, stream.height = width - width % 2, height - height % 2
-        stream.pix_fmt = "yuv420p"
-        for rgb in frames:
-            frame = av.VideoFrame.from_ndarray(rgb[: stream.height, : stream.width], format="rgb24")
-            container.mux(stream.encode(frame))
-        container.mux(stream.encode())
 
 
 def record(cfg: DictConfig) -> Path:

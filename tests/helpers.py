@@ -3,7 +3,7 @@
 import torch
 from hydra import compose, initialize_config_dir
 
-from roto_trl.resources import resource_dir
+from roto_trl.utils.resources import resource_dir
 
 # tiny and fast on top of +profile=smoke: short episodes, few gradient steps
 TINY = [

@@ -10,8 +10,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import roto_trl  # noqa: F401  (registers the ids)
-from roto_trl.gymnasium_env import RoToVectorEnv
-from roto_trl.registration import ENV_IDS
+from roto_trl.envs.gymnasium_env import RoToVectorEnv
+from roto_trl.envs.registration import ENV_IDS
 
 
 def test_import_registers_the_ids_and_changes_nothing_else():

@@ -9,7 +9,7 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.objectives import SoftUpdate
 
-from roto_trl.memory import AuxMemory
+from roto_trl.data.memory import AuxMemory
 from roto_trl.modules.agent import Agent
 from roto_trl.objectives import (
     ForwardDynamicsLoss,
@@ -146,7 +146,7 @@ def test_tfd_tactile_term_is_live():
 
 
 def test_ppo_and_auxiliary_optimisers_hold_the_right_parameters():
-    from roto_trl.auxiliary import AuxiliaryUpdate
+    from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 
     agent = Agent(("prop", "tactile"), P + T, A)
     loss = TactileReconstructionLoss(agent.common, T)
@@ -218,7 +218,7 @@ def test_sequences_never_cross_an_episode_end():
 
 
 def test_auxiliary_step_waits_for_runs_of_n_steps():
-    from roto_trl.auxiliary import AuxiliaryUpdate
+    from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 
     memory = AuxMemory(1, ("prop", "tactile"))
     memory.add(rollout(0.0, dones=[(0, 1), (0, 3), (1, 1), (1, 3)]))  # episodes of at most 2 steps

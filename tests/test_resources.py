@@ -5,7 +5,7 @@ from omegaconf import OmegaConf
 
 from roto_trl import TASKS, make_env
 from roto_trl.envs.scene import robot_assets_dir
-from roto_trl.resources import resource_dir, resource_path
+from roto_trl.utils.resources import resource_dir, resource_path
 
 
 def test_assets_and_conf_resolve():

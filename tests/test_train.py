@@ -15,16 +15,18 @@ import torch
 from helpers import TINY, compose_cfg
 from omegaconf import OmegaConf
 
-from roto_trl.builders import agent_for_env, make_train_env
-from roto_trl.checkpoint import load_checkpoint
-from roto_trl.resources import resource_dir
 from roto_trl.train import EXIT_NON_FINITE, check_config, train
+from roto_trl.trainers.builders import agent_for_env, make_train_env
+from roto_trl.trainers.checkpoint import load_checkpoint
+from roto_trl.utils.resources import resource_dir
 
 FRAMES_PER_ITERATION = 8 * 16  # TINY: 8 worlds x 16 steps
 TRAIN = [sys.executable, str(Path(__file__).resolve().parent.parent / "roto_trl" / "train.py")]
 # Table A4's 21 experiments and the 3 no-last-action ablations (conf/exp/ may hold more: tuned sweeps)
 VARIANTS = ("ppo_prop", "ppo", "ppo_prop_nolastaction", "fr", "tr", "fd", "tfd", "fd_mem")
 EXPS = [f"{task}_{variant}" for task in ("find", "bounce", "baoding") for variant in VARIANTS]
+
+
 def rows(path: Path) -> list[dict[str, str]]:
     with path.open(newline="") as handle:
         return list(csv.DictReader(handle))
@@ -186,7 +188,7 @@ def test_record_plays_a_trained_checkpoint(tmp_path):
 
 @pytest.mark.parametrize("backend", ["wandb", "tensorboard", "csv", "none"])
 def test_logger_backends_work_offline(backend, tmp_path, monkeypatch):
-    from roto_trl.loggers import MetricLogger, read_csv
+    from roto_trl.trainers.loggers import MetricLogger, read_csv
 
     monkeypatch.setenv("WANDB_MODE", "offline")  # belt and braces: never reach for the network
     logger = MetricLogger(tmp_path, backend, config={"seed": 0}, name="t")

@@ -35,19 +35,18 @@ import socket
 import traceback
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import optuna
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep, Override, RangeSweep
 from hydra.core.utils import JobReturn
+from hydra.plugins.sweeper import Sweeper
 from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
 from optuna.trial import Trial, TrialState
 
-from roto_trl.sweep import TRIAL_FILE, open_storage, record_study, redact, storage_url, write_summary
-
-if TYPE_CHECKING:
-    from hydra_plugins.roto_optuna_sweeper.sweeper import OptunaSweeper
+from roto_trl.sweeps.report import write_summary
+from roto_trl.sweeps.storage import TRIAL_FILE, open_storage, record_study, redact, storage_url
 
 TAGS = {"log", "int"}  # tag(log, ...): log scale; tag(int, interval(...)): integers
 RESERVED = ("run_dir", "resume")  # set by the sweeper for each trial
@@ -157,9 +156,14 @@ def _failure(job: JobReturn, run_dir: Path) -> str | None:
 
 
 class StudyLoop:
-    """One worker of a sweep: the study, its search space, and this worker's run of failures."""
+    """One worker of a sweep: the study, its search space, and this worker's run of failures.
 
-    def __init__(self, sweeper: OptunaSweeper, arguments: list[str]) -> None:
+    ``sweeper`` is the plugin (``sweeper.OptunaSweeper``, set up by Hydra): its ``conf``,
+    ``config``, ``hydra_context`` and ``launcher`` are read here. Typed as Hydra's ``Sweeper`` so
+    that this module never imports ``sweeper.py``, which imports this one when a sweep starts.
+    """
+
+    def __init__(self, sweeper: Sweeper, arguments: list[str]) -> None:
         conf, config = sweeper.conf, sweeper.config
         for key in ("n_trials", "max_failures", "heartbeat_interval", "grace_period"):
             if getattr(conf, key) < 1:
@@ -284,5 +288,5 @@ class StudyLoop:
             )
 
 
-def run_sweep(sweeper: OptunaSweeper, arguments: list[str]) -> None:
+def run_sweep(sweeper: Sweeper, arguments: list[str]) -> None:
     StudyLoop(sweeper, arguments).run()

@@ -10,10 +10,10 @@ import torch
 from omegaconf import OmegaConf
 from tensordict import TensorDict, TensorDictBase
 
-from roto_trl.builders import make_eval_env
-from roto_trl.checkpoint import agent_from_checkpoint
-from roto_trl.evaluation import run_episodes
 from roto_trl.modules.agent import Agent
+from roto_trl.trainers.builders import make_eval_env
+from roto_trl.trainers.checkpoint import agent_from_checkpoint
+from roto_trl.trainers.evaluation import run_episodes
 
 
 @dataclass
@@ -43,7 +43,7 @@ def collect(
     """Run a checkpoint's deterministic policy for one episode in each of ``worlds`` fresh worlds.
 
     Args:
-        state: a loaded training checkpoint (``roto_trl.checkpoint.load_checkpoint``).
+        state: a loaded training checkpoint (``roto_trl.trainers.checkpoint.load_checkpoint``).
         worlds: evaluation worlds (E).
         seed: the evaluation seed.
         max_steps: stop after this many steps (default: until every episode ended).

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import OmegaConf
 
-from roto_trl.loggers import read_csv
+from roto_trl.trainers.loggers import read_csv
 
 
 @dataclass

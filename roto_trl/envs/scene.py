@@ -16,7 +16,7 @@ from pathlib import Path
 
 import mujoco
 
-from roto_trl.resources import resource_dir, resource_path
+from roto_trl.utils.resources import resource_dir, resource_path
 
 CONTROL_HZ = 60
 CONTROL_DT = 1.0 / CONTROL_HZ

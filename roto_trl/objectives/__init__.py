@@ -1,6 +1,6 @@
 """Self-supervised objectives as TorchRL ``LossModule``s (each usable in any TorchRL project).
 
-PPO itself is TorchRL's ``ClipPPOLoss`` (see ``roto_trl.builders.make_ppo_loss``).
+PPO itself is TorchRL's ``ClipPPOLoss`` (see ``roto_trl.trainers.builders.make_ppo_loss``).
 """
 
 from roto_trl.objectives.forward_dynamics import ForwardDynamicsLoss, TactileForwardDynamicsLoss

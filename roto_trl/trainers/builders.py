@@ -15,9 +15,8 @@ from torchrl.envs import TransformedEnv
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from roto_trl.auxiliary import AuxiliaryUpdate
+from roto_trl.data.memory import AuxMemory
 from roto_trl.envs.factory import make_env
-from roto_trl.memory import AuxMemory
 from roto_trl.modules.agent import Agent
 from roto_trl.objectives import (
     ForwardDynamicsLoss,
@@ -25,6 +24,7 @@ from roto_trl.objectives import (
     TactileForwardDynamicsLoss,
     TactileReconstructionLoss,
 )
+from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
 

@@ -17,7 +17,7 @@ def register_envs() -> None:
         if env_id not in gymnasium.registry:
             gymnasium.register(
                 id=env_id,
-                entry_point="roto_trl.gymnasium_env:RoToEnv",
-                vector_entry_point="roto_trl.gymnasium_env:RoToVectorEnv",
+                entry_point="roto_trl.envs.gymnasium_env:RoToEnv",
+                vector_entry_point="roto_trl.envs.gymnasium_env:RoToVectorEnv",
                 kwargs={"task": task},
             )

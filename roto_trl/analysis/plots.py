@@ -10,7 +10,7 @@ matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt
 import numpy as np
 
-from roto_trl.loggers import read_csv
+from roto_trl.trainers.loggers import read_csv
 
 SKIP = {"frames", "iteration", "return_mean", "return_std", "time"}
 

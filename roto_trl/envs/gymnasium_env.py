@@ -1,6 +1,6 @@
 """Gymnasium interface to the RoTO tasks, for researchers on other stacks.
 
-``import roto_trl`` registers three ids (``roto_trl.registration``); nothing else happens on import:
+``import roto_trl`` registers three ids (``roto_trl.envs.registration``); nothing else happens on import:
 
     envs = gymnasium.make_vec("RoTO/Bounce-v0", num_envs=1024)   # RoToVectorEnv, same-step autoreset
     env = gymnasium.make("RoTO/Find-v0")                         # RoToEnv, a single world

@@ -50,7 +50,7 @@ def agent_from_checkpoint(state: dict[str, Any], env):
     Build ``env`` from the checkpoint's own settings (``builders.make_task_env(state["config"],
     ...)``); a mismatch in observations or actions is reported, not silently accepted.
     """
-    from roto_trl.builders import agent_for_env
+    from roto_trl.trainers.builders import agent_for_env
 
     agent = agent_for_env(state["config"], env)
     try:

@@ -11,9 +11,9 @@ from __future__ import annotations
 import torch
 from torchrl.objectives import SoftUpdate
 
-from roto_trl.errors import NonFiniteError
-from roto_trl.memory import AuxMemory
+from roto_trl.data.memory import AuxMemory
 from roto_trl.objectives import ForwardDynamicsLoss
+from roto_trl.trainers.errors import NonFiniteError
 
 
 class AuxiliaryUpdate:

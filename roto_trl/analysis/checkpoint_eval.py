@@ -1,0 +1,111 @@
+"""A run's checkpoint evaluated on fresh episodes: return, episode metrics and the task's physical
+metrics, written as ``eval.json`` (with an optional video) and shown in the run's ``index.md``.
+Used by ``evaluate.py``, by ``train.py`` at the end of a run and by the analyses."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from roto_trl.analysis.report import write_index
+from roto_trl.trainers.builders import eval_seed, make_eval_env
+from roto_trl.trainers.checkpoint import BEST, LATEST, agent_from_checkpoint, load_checkpoint
+from roto_trl.trainers.evaluation import run_episodes
+from roto_trl.utils.video import write_mp4
+
+NAMED = {"best": BEST, "latest": LATEST}
+
+
+def load_run(run_dir: Path, checkpoint: str = "best") -> tuple[DictConfig, dict[str, Any], Path]:
+    """A run's config, the chosen checkpoint's state and its path.
+
+    Raises ``FileNotFoundError`` for a missing run or checkpoint and ``ValueError`` for a
+    checkpoint of another task or other observations, each naming the fix.
+    """
+    run_dir = Path(run_dir)
+    if not (run_dir / "config.yaml").is_file():
+        raise FileNotFoundError(
+            f"run={run_dir}: no config.yaml there; give a run directory that train.py wrote"
+        )
+    cfg = OmegaConf.load(run_dir / "config.yaml")
+    path = run_dir / "checkpoints" / NAMED[checkpoint] if checkpoint in NAMED else Path(checkpoint)
+    state = load_checkpoint(path)
+    trained = state["config"]["env"]
+    if trained["task"] != cfg.env.task:
+        raise ValueError(
+            f"checkpoint {path} was trained on {trained['task']!r} but run {run_dir} is {cfg.env.task!r}; "
+            "give a checkpoint of this run's task"
+        )
+    inputs = (list(trained["obs_keys"]), bool(trained["last_action"]))
+    if inputs != (list(cfg.env.obs_keys), bool(cfg.env.last_action)):
+        raise ValueError(
+            f"checkpoint {path} sees obs_keys={inputs[0]}, last_action={inputs[1]} but run {run_dir} "
+            f"sees obs_keys={list(cfg.env.obs_keys)}, last_action={cfg.env.last_action}; "
+            "give a checkpoint of this run's experiment"
+        )
+    return cfg, state, path
+
+
+def evaluate_checkpoint(
+    cfg: DictConfig, state: dict[str, Any], episodes: int, seed: int, video: bool = False
+) -> tuple[dict[str, Any], list]:
+    """Evaluate a checkpoint's deterministic policy on ``episodes`` fresh worlds of its task.
+
+    Returns the result (return mean/std, mean episode length, episode metric means, physical
+    metrics) and, with ``video``, the RGB frames of the first episode.
+    """
+    run_cfg = OmegaConf.create(state["config"])
+    run_cfg.device = "cpu"
+    env = make_eval_env(run_cfg, episodes)
+    try:
+        agent = agent_from_checkpoint(state, env)
+        base = env.base_env
+        result = run_episodes(env, agent, seed, render=(lambda: base.render(0)) if video else None)
+        physical = base.physical_metrics(result.final)
+    finally:
+        env.close()
+    summary = {
+        "task": cfg.env.task,
+        "exp_name": cfg.exp_name,
+        "trained_frames": int(state["frames"]),
+        "episodes": int(episodes),
+        "seed": int(seed),
+        "return_mean": float(result.returns.mean()),
+        "return_std": float(result.returns.std(correction=0)),
+        "episode_steps_mean": float(result.lengths.double().mean()),
+        "metrics": {name: float(v.mean()) for name, v in result.final.items()},
+        "physical": physical,
+    }
+    return summary, result.frames
+
+
+def evaluate_run(
+    run_dir: Path,
+    checkpoint: str = "best",
+    episodes: int | None = None,
+    seed: int | None = None,
+    video: bool = False,
+    out: Path | None = None,
+) -> Path:
+    """Evaluate one checkpoint of a run, write ``eval.json`` (and the video), refresh ``index.md``."""
+    run_dir = Path(run_dir)
+    cfg, state, path = load_run(run_dir, checkpoint)
+    episodes = int(cfg.eval.num_envs if episodes is None else episodes)
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    seed = eval_seed(cfg) if seed is None else int(seed)
+    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video)
+    summary = {"run_dir": str(run_dir.resolve()), "checkpoint": str(path.resolve()), **summary}
+    if video:
+        video_path = run_dir / "videos" / f"eval-{path.stem}-s{seed}.mp4"
+        video_path.parent.mkdir(exist_ok=True)
+        write_mp4(video_path, frames)
+        summary["video"] = str(video_path.resolve())
+    out = run_dir / "eval.json" if out is None else Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(summary, indent=2))
+    write_index(run_dir)
+    return out
