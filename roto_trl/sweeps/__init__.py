@@ -1,0 +1,1 @@
+"""Hyperparameter sweeps: where an Optuna study lives and how a sweep is reported."""
