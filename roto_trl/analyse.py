@@ -289,6 +289,17 @@ COMMANDS = {
 }
 
 
+def positive_int(text: str) -> int:
+    """An argparse type: an integer >= 1 (argparse names the option in its one-line error)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 1, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {value}")
+    return value
+
+
 def parse_args(argv: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="analyse.py", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -301,21 +312,25 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         if name in ("mi", "latent", "tactile"):
             p.add_argument("--checkpoint", default="best", choices=["best", "latest"])
             p.add_argument(
-                "--worlds", type=int, default=100 if name == "mi" else 1, help="evaluation episodes"
+                "--worlds", type=positive_int, default=100 if name == "mi" else 1, help="evaluation episodes"
             )
-            p.add_argument("--max-steps", type=int, default=None, help="steps per episode (default: all)")
+            p.add_argument(
+                "--max-steps", type=positive_int, default=None, help="steps per episode (default: all)"
+            )
         if name == "curves":
             p.add_argument(
                 "--no-physical", action="store_true", help="skip the physical-metric bars (no eval.json)"
             )
             p.add_argument("--x", choices=["frames", "minutes"], default="frames", help="curves against")
         if name == "mi":
-            p.add_argument("--samples", type=int, default=5000, help="(z, s) pairs, drawn from all steps")
-            p.add_argument("--pca", type=int, default=13, help="principal components of z")
-            p.add_argument("--k", type=int, default=4, help="KSG neighbours")
+            p.add_argument(
+                "--samples", type=positive_int, default=5000, help="(z, s) pairs, drawn from all steps"
+            )
+            p.add_argument("--pca", type=positive_int, default=13, help="principal components of z")
+            p.add_argument("--k", type=positive_int, default=4, help="KSG neighbours")
             p.add_argument("--seed", type=int, default=0, help="seed of the sample draw")
         if name == "tactile":
-            p.add_argument("--steps", type=int, default=120, help="steps shown in the contact map")
+            p.add_argument("--steps", type=positive_int, default=120, help="steps shown in the contact map")
     return parser.parse_args(argv)
 
 

@@ -27,7 +27,8 @@ from pathlib import Path
 from typing import Any
 
 from roto_trl.analysis.checkpoint_eval import evaluate_run
-from roto_trl.utils.cli import parse_key_values
+from roto_trl.utils.cli import check_int, parse_key_values
+from roto_trl.utils.paths import writable_file
 
 DEFAULTS = {"run": "???", "checkpoint": "best", "episodes": None, "seed": None, "video": False, "out": None}
 
@@ -44,7 +45,13 @@ def main(argv: list[str] | None = None) -> Path:
     cfg = parse_key_values(
         "evaluate", sys.argv[1:] if argv is None else argv, DEFAULTS, "run=runs/find_ppo/<run>"
     )
+    check_int("evaluate", cfg, "episodes", 1, optional=True)
+    check_int("evaluate", cfg, "seed", 0, optional=True)
+    if not isinstance(cfg.video, bool):
+        raise SystemExit(f"evaluate: video must be true or false, got {cfg.video!r}")
     try:
+        if cfg.out is not None:  # before the evaluation, not after it
+            writable_file(Path(str(cfg.out)), "out")
         out = evaluate_run(
             Path(str(cfg.run)),
             str(cfg.checkpoint),

@@ -28,7 +28,8 @@ from omegaconf import DictConfig, OmegaConf
 from roto_trl.envs.factory import TASKS, make_env
 from roto_trl.trainers.builders import make_task_env
 from roto_trl.trainers.checkpoint import load_checkpoint, policy_from_checkpoint
-from roto_trl.utils.cli import parse_key_values
+from roto_trl.utils.cli import check_int, parse_key_values
+from roto_trl.utils.paths import writable_file
 from roto_trl.utils.video import write_mp4
 
 DEFAULTS = {
@@ -49,6 +50,18 @@ def parse_args(argv: list[str]) -> DictConfig:
     cfg = parse_key_values("record", argv, DEFAULTS, "task=bounce policy=random")
     if cfg.task not in TASKS:
         raise SystemExit(f"record: give task=<{'|'.join(sorted(TASKS))}>, got {cfg.task!r}")
+    for key in ("width", "height"):  # H.264 frames have even sides: 2 pixels at least
+        check_int("record", cfg, key, 2)
+    check_int("record", cfg, "max_steps", 1, optional=True)
+    check_int("record", cfg, "seed", 0)
+    if cfg.out is not None:
+        out = Path(str(cfg.out))
+        try:
+            writable_file(out, "out")
+        except ValueError as err:
+            raise SystemExit(f"record: {err}") from None
+        if out.suffix.lower() != ".mp4":
+            raise SystemExit(f"record: out={out} must name an .mp4 file")
     return cfg
 
 

@@ -18,8 +18,10 @@ import logging
 import math
 import os
 import random
+import signal
 import sys
 import time
+from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
 
@@ -33,6 +35,7 @@ from tqdm import tqdm
 
 from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.analysis.plots import plot_run
+from roto_trl.envs.factory import task_config
 from roto_trl.trainers.builders import (
     agent_for_env,
     eval_seed,
@@ -46,10 +49,14 @@ from roto_trl.trainers.builders import (
     make_train_env,
 )
 from roto_trl.trainers.checkpoint import BEST, LATEST, load_checkpoint, save_checkpoint
-from roto_trl.trainers.errors import NonFiniteError
+from roto_trl.trainers.errors import NonFiniteError, RunInUse, TrainingInterrupted, WriteError
 from roto_trl.trainers.evaluation import evaluate
+from roto_trl.trainers.interrupts import StopRequests
 from roto_trl.trainers.loggers import BACKENDS, MetricLogger, read_csv
 from roto_trl.trainers.ppo import ppo_update, rollout_stats, store_rollout
+from roto_trl.trainers.run_dir import finished_reason, resume_config, rewind
+from roto_trl.trainers.run_lock import RunLock
+from roto_trl.utils.paths import writable_dir
 from roto_trl.utils.resources import resource_dir
 
 EXIT_NON_FINITE = 3  # exit status of a run stopped by a NaN or inf
@@ -81,33 +88,65 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"agent.lr must be > 0, got {cfg.agent.lr}")
     if cfg.logger.backend not in BACKENDS:
         raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
-    if str(cfg.device).startswith("cuda") and not torch.cuda.is_available():
-        raise ValueError(f"device={cfg.device} but this machine has no CUDA device; use device=cpu")
+    check_device(cfg.device)
+    threads = cfg.torch_threads
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"torch_threads must be a positive integer or null, got {threads!r}")
+    interval = cfg.checkpoint.interval_minutes
+    if isinstance(interval, bool) or not isinstance(interval, int | float) or interval < 0:
+        raise ValueError(f"checkpoint.interval_minutes must be a number >= 0, got {interval!r}")
+    if isinstance(cfg.seed, bool) or not isinstance(cfg.seed, int):
+        raise ValueError(f"seed must be an integer, got {cfg.seed!r}")
+    task_config(cfg.env.task, **OmegaConf.to_container(cfg.env.overrides))  # names a bad env.overrides key
 
 
-def prepare_run(cfg: DictConfig) -> tuple[DictConfig, Path, dict | None]:
-    """The run's config, directory and (when resuming) checkpoint.
+def check_device(device) -> None:
+    """A one-line error unless ``device`` is ``cpu`` or an available ``cuda[:<index>]``."""
+    try:
+        kind = torch.device(str(device)).type
+    except RuntimeError:
+        kind = None
+    if kind not in ("cpu", "cuda"):
+        raise ValueError(f"device must be cpu or cuda[:<index>], got {device!r}")
+    if kind == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device={device} but this machine has no CUDA device; use device=cpu")
 
-    A resumed run takes its own saved config (``<run dir>/config.yaml``), whatever else is given.
+
+def prepare_run(
+    cfg: DictConfig, overrides: Sequence[str] = ()
+) -> tuple[DictConfig, Path, dict | None, RunLock]:
+    """The run's config, directory, (when resuming) checkpoint, and the directory's lock, held.
+
+    A resumed run takes its own saved config (``<run dir>/config.yaml``) with the ``RESUMABLE``
+    keys that the command line ``overrides`` change (``run_dir.resume_config``). Another process
+    holding the directory is an error before anything in it is touched.
     """
     if cfg.resume:
         run_dir = Path(str(cfg.resume))
         saved = run_dir / "config.yaml"
         if not saved.is_file():
             raise FileNotFoundError(f"resume={run_dir}: no config.yaml there; give a run directory")
-        state = load_checkpoint(run_dir / "checkpoints" / LATEST)
-        return OmegaConf.load(saved), run_dir, state
+        new_cfg = resume_config(OmegaConf.load(saved), cfg, overrides)
+        lock = RunLock(writable_dir(run_dir, "resume")).acquire()
+        try:
+            state = load_checkpoint(run_dir / "checkpoints" / LATEST)
+            check_config(new_cfg)
+        except BaseException:
+            lock.release()
+            raise
+        return new_cfg, run_dir, state, lock
     if cfg.run_dir:
         run_dir = Path(str(cfg.run_dir))
     else:
         run_dir = Path("runs") / cfg.exp_name / f"{datetime.now():%Y%m%d-%H%M%S}-s{cfg.seed}"
+    lock = RunLock(writable_dir(run_dir, "run_dir")).acquire()
     if (run_dir / "checkpoints" / LATEST).exists():
+        lock.release()
         raise FileExistsError(f"{run_dir} already holds a run; continue it with resume={run_dir}")
-    run_dir.mkdir(parents=True, exist_ok=True)
     resolved = OmegaConf.to_container(cfg, resolve=True)
     resolved["run_dir"], resolved["resume"] = str(run_dir), None
     OmegaConf.save(OmegaConf.create(resolved), run_dir / "config.yaml")
-    return OmegaConf.create(resolved), run_dir, None
+    return OmegaConf.create(resolved), run_dir, None, lock
 
 
 def seed_everything(seed: int) -> None:
@@ -135,12 +174,38 @@ def set_rng_state(state: dict, env) -> None:
 # ---------------------------------------------------------------------------- the run
 
 
-def train(cfg: DictConfig) -> Path:
-    """Run (or resume) PPO training as configured; returns the path of ``summary.json``."""
+def train(cfg: DictConfig, overrides: Sequence[str] = ()) -> Path:
+    """Run (or resume) PPO training as configured; returns the path of ``summary.json``.
+
+    ``overrides`` are the command line's ``key=value`` arguments: with ``resume=`` only the
+    ``RESUMABLE`` ones may be given. The run directory is locked while this runs; a resumed run's
+    logs are first cut back to its checkpoint, and a finished one is left unchanged.
+    """
     check_config(cfg)
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # its storage notices are not progress
-    cfg, run_dir, resumed = prepare_run(cfg)
-    check_config(cfg)
+    cfg, run_dir, resumed, lock = prepare_run(cfg, overrides)
+    try:
+        if resumed is not None:
+            reason = finished_reason(cfg, resumed)
+            if reason is not None:
+                print(
+                    f"resume={run_dir}: nothing to do, {reason}; the run is unchanged. Train on with "
+                    f"resume={run_dir} total_frames=<more> (or a larger time_limit_minutes)"
+                )
+                return run_dir / "summary.json"
+            OmegaConf.save(cfg, run_dir / "config.yaml")  # an extended budget
+            dropped = {kind: n for kind, n in rewind(run_dir, resumed).items() if n}
+            if dropped:
+                rows = ", ".join(f"{n} of {kind}.csv" for kind, n in dropped.items())
+                print(f"resume: dropped the rows logged after the checkpoint ({rows})")
+        with StopRequests() as stop:
+            return run_training(cfg, run_dir, resumed, stop)
+    finally:
+        lock.release()
+
+
+def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: StopRequests) -> Path:
+    """The run itself, in a prepared and locked ``run_dir``; stops early on ``stop``'s signal."""
     seed_everything(int(cfg.seed))
     torch.set_num_threads(int(cfg.torch_threads) if cfg.torch_threads else len(os.sched_getaffinity(0)))
 
@@ -180,11 +245,13 @@ def train(cfg: DictConfig) -> Path:
         config=OmegaConf.to_container(cfg),
         name=run_dir.name,
         project=cfg.logger.project,
-        resume=resumed is not None,
+        resume_frames=None if resumed is None else frames,
     )
     ckpt_dir = run_dir / "checkpoints"
+    saved_frames = None if resumed is None else frames  # what latest.pt holds
 
     def checkpoint(name: str, wall: float) -> None:
+        nonlocal saved_frames
         state = {
             "agent": agent.state_dict(),
             "optimizer": optimizer.state_dict(),
@@ -198,7 +265,13 @@ def train(cfg: DictConfig) -> Path:
         }
         if aux is not None:
             state["aux"] = {"loss": aux.loss.state_dict(), "optimizer": aux.optimizer.state_dict()}
-        save_checkpoint(ckpt_dir / name, state)
+        try:
+            save_checkpoint(ckpt_dir / name, state)
+        except WriteError as err:  # the logs must not run ahead of the last good checkpoint
+            logger.truncate(saved_frames or 0)
+            raise WriteError(f"{err}; the logs are cut back to the last checkpoint") from None
+        if name == LATEST:
+            saved_frames = frames
 
     # 4. the loop
     start = time.perf_counter()
@@ -253,18 +326,28 @@ def train(cfg: DictConfig) -> Path:
                 postfix["eval_return"] = f"{final_eval['return_mean']:.2f}"
                 if final_eval["return_mean"] > best:
                     best, best_eval = final_eval["return_mean"], {"frames": frames, **final_eval}
+                    checkpoint(LATEST, wall)  # first: best.pt is never newer than latest.pt
                     checkpoint(BEST, wall)
-            if done_training or time.perf_counter() - last_ckpt >= 60 * cfg.checkpoint.interval_minutes:
+            interval_due = time.perf_counter() - last_ckpt >= 60 * cfg.checkpoint.interval_minutes
+            stopping = done_training or stop.signum is not None
+            if saved_frames != frames and (stopping or interval_due):
                 checkpoint(LATEST, wall)
                 last_ckpt = time.perf_counter()
             postfix["fps"] = f"{stats['fps']:,.0f}"
             bar.set_postfix(postfix, refresh=False)
             bar.update(batch.numel())
+            if stop.signum is not None and not done_training:
+                raise TrainingInterrupted(frames, stop.signum, run_dir)
             if done_training:
                 if out_of_time and frames < cfg.total_frames:
                     print(f"time limit of {cfg.time_limit_minutes} min reached at {frames:,} frames")
                 break
             t_collect = time.perf_counter()
+    except KeyboardInterrupt as err:  # a second signal: the iteration is abandoned
+        if isinstance(err, TrainingInterrupted):
+            raise
+        logger.truncate(saved_frames or 0)
+        raise TrainingInterrupted(saved_frames or 0, stop.signum or signal.SIGINT, run_dir) from None
     finally:
         bar.close()
         collector.shutdown()
@@ -314,19 +397,45 @@ def run_objective(run_dir: Path) -> float:
 def main(cfg: DictConfig) -> float:
     """Train; return the run's objective (``run_objective``) for a sweep.
 
-    A single run reports a NaN/inf stop (exit status 3) and bad input (status 2) in one line. In a
-    multirun the error propagates instead: Hydra's launcher records the job as failed and the
-    sweeper goes on with the next trial, where ``sys.exit`` would end the whole sweep.
+    A single run reports in one line: bad input or a run directory in use (exit status 2), a
+    NaN/inf stop (3), a failed write such as a full disk (1), SIGINT/SIGTERM (130/143, after
+    writing ``latest.pt``). In a multirun the error propagates instead: Hydra's launcher records
+    the job as failed and the sweeper goes on with the next trial, where ``sys.exit`` would end
+    the whole sweep. A multirun of Hydra's basic sweeper with ``run_dir=`` gives each job its own
+    ``<run_dir>/<job number>``.
     """
-    in_sweep = HydraConfig.get().mode == RunMode.MULTIRUN
+    hydra_cfg = HydraConfig.get()
+    in_sweep = hydra_cfg.mode == RunMode.MULTIRUN
+    if in_sweep and cfg.run_dir and not str(hydra_cfg.sweeper.get("_target_", "")).endswith("OptunaSweeper"):
+        cfg.run_dir = str(Path(str(cfg.run_dir)) / str(hydra_cfg.job.num))
     try:
-        summary = train(cfg)
+        summary = train(cfg, list(hydra_cfg.overrides.task))
+    except TrainingInterrupted as err:
+        if in_sweep:
+            raise
+        if err.frames:
+            print(
+                f"train: stopped at {err.frames:,} frames; continue with: "
+                f"python roto_trl/train.py resume={err.run_dir}",
+                file=sys.stderr,
+            )
+        else:
+            print(
+                f"train: stopped before the first checkpoint; nothing to continue in {err.run_dir}",
+                file=sys.stderr,
+            )
+        sys.exit(128 + err.signum)
     except NonFiniteError as err:
         if in_sweep:
             raise
         print(f"train: stopped: {err}. The last good checkpoint is intact.", file=sys.stderr)
         sys.exit(EXIT_NON_FINITE)
-    except (ValueError, FileNotFoundError, FileExistsError) as err:
+    except WriteError as err:
+        if in_sweep:
+            raise
+        print(f"train: {err}", file=sys.stderr)
+        sys.exit(1)
+    except (ValueError, FileNotFoundError, FileExistsError, RunInUse) as err:
         if in_sweep:
             raise
         print(f"train: {err}", file=sys.stderr)

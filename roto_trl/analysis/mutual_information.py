@@ -68,6 +68,8 @@ def ksg_mutual_information(x: np.ndarray, y: np.ndarray, k: int = 4, seed: int =
     if len(x) != len(y):
         raise ValueError(f"x and y need the same number of samples, got {len(x)} and {len(y)}")
     n = len(x)
+    if isinstance(k, bool) or not isinstance(k, int) or k < 1:
+        raise ValueError(f"KSG needs k >= 1 neighbours, got k={k!r}")
     if n <= k:
         raise ValueError(f"KSG with k={k} needs more than {k} samples, got {n}")
     rng = np.random.default_rng(seed)

@@ -122,6 +122,7 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
         self._sensordata = np.zeros((n, self.substeps, m.nsensordata))
         self._step_count = torch.zeros(n, dtype=torch.long)
         self.rng = np.random.default_rng(seed)
+        self._closed = False
         self._make_specs()
 
     # ------------------------------------------------------------------ subclass interface
@@ -251,6 +252,10 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
 
     # ------------------------------------------------------------------ EnvBase
 
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError(f"this {type(self).__name__} is closed (close() was called); make a new env")
+
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
         """Start new episodes: all envs, or those flagged in ``tensordict["_reset"]``.
 
@@ -259,6 +264,7 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
                 envs that do not reset are ignored); default: the task's random initial state.
             mocap_pos: optional ``[N, nmocap, 3]`` positions of the mocap bodies, with ``qpos``.
         """
+        self._check_open()
         mask = None if tensordict is None else tensordict.get("_reset", None)
         if mask is None or bool(mask.all()):
             idx = np.arange(self.num_envs)
@@ -321,6 +327,7 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
         )
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        self._check_open()
         action = self._validated_action(tensordict.get("action"))
         reading = self._physics(self._prepare_ctrl(action))
         self._step_count += 1
@@ -365,5 +372,6 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
         self.rng = np.random.default_rng(seed)
 
     def close(self, *, raise_if_closed: bool = True) -> None:
+        self._closed = True
         self._pool.close()
         super().close(raise_if_closed=raise_if_closed)

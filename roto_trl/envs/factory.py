@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 
 import torch
 from torchrl.envs import CatFrames, CatTensors, Compose, TransformedEnv
@@ -15,6 +16,9 @@ from roto_trl.transforms import BinariseContacts, LastAction, ScaleProprioceptio
 # task name -> env class (its CONFIG, SENSORS, VEL_SCALE and PROP_EXTRA say the rest)
 TASKS = {"find": FindEnv, "bounce": BounceEnv, "baoding": BaodingEnv}
 PROP_PARTS = ("last_action", "joint_pos", "joint_vel")  # then the task's PROP_EXTRA
+# Memory of one world, measured after two steps of step_and_maybe_reset (24 KiB Bounce/Baoding
+# at history 4, 28 KiB Find at history 16) and rounded up: a fixed part plus one per history step.
+WORLD_BYTES, HISTORY_BYTES = 16 * 1024, 2 * 1024
 
 
 def task_config(task: str, **overrides):
@@ -34,8 +38,40 @@ def task_config(task: str, **overrides):
             raise ValueError(
                 f"unknown reward term(s) {bad} for task {task!r}; terms: {sorted(config.reward_scales)}"
             )
-        config.reward_scales.update({k: float(v) for k, v in scales.items()})
+        for term, value in scales.items():
+            try:
+                config.reward_scales[term] = float(value)
+            except (TypeError, ValueError):
+                raise ValueError(f"reward_scales[{term!r}] must be a number, got {value!r}") from None
     return config
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to new allocations (Linux ``MemAvailable``), None if unknown."""
+    try:
+        with open("/proc/meminfo") as handle:
+            for line in handle:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError):
+        return None
+
+
+def check_memory(task: str, num_envs: int, history: int) -> None:
+    """Refuse, before allocating, a batch that would not fit in the available memory."""
+    need = num_envs * (WORLD_BYTES + history * HISTORY_BYTES)
+    available = available_memory()
+    if available is not None and need > available:
+        gib = 2**30
+        raise ValueError(
+            f"make_env({task!r}, {num_envs:,}) needs about {need / gib:.1f} GiB "
+            f"({(WORLD_BYTES + history * HISTORY_BYTES) // 1024} KiB a world) but this machine has "
+            f"{available / gib:.1f} GiB available; use fewer worlds"
+        )
 
 
 def make_env(
@@ -65,9 +101,10 @@ def make_env(
         ``[N, k*T]``), with ``"contact_force"``, ``"state"``, the task's episode metric and
         ``"reward_terms"`` alongside. The base env is ``env.base_env`` (``.mj_model``).
     """
-    if not isinstance(num_envs, int) or num_envs < 1:
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
     config = task_config(task, **overrides)
+    check_memory(task, num_envs, config.history)
     base = TASKS[task](num_envs, config, seed=seed, device=device)
     parts = PROP_PARTS if last_action else PROP_PARTS[1:]
     return TransformedEnv(

@@ -144,7 +144,10 @@ class RoToVectorEnv(VectorEnv):
 
 
 class RoToEnv(gymnasium.Env):
-    """One world of a RoTO task as a Gymnasium ``Env`` (call ``reset`` after an episode ends).
+    """One world of a RoTO task as a Gymnasium ``Env``.
+
+    As Gymnasium's env checker expects: an action has exactly the action space's shape, and
+    stepping after ``terminated`` or ``truncated`` is an error until ``reset``.
 
     Args: as ``RoToVectorEnv`` without ``num_envs``.
     """
@@ -155,18 +158,27 @@ class RoToEnv(gymnasium.Env):
         self.env, self._td, self.observation_space, self.action_space = _open(task, 1, seed, overrides)
         self.render_mode = render_mode
         self._metrics = self.env.base_env.METRICS
+        self._ended = False
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
+        self._ended = False
         if seed is not None:
             self.env.set_seed(int(seed))
         self._td = self.env.reset()
         return self._unbatch(_obs(self._td)), self._unbatch(_info(self._td, self._metrics))
 
     def step(self, action):
-        self._td.set("action", _actions(np.reshape(action, (1, -1)), (1, self.action_space.shape[0])))
+        if self._ended:
+            raise RuntimeError("the episode has ended (terminated or truncated); call reset() before step()")
+        array = np.asarray(action, dtype=np.float32)
+        if array.shape != self.action_space.shape:
+            expected = list(self.action_space.shape)
+            raise ValueError(f"action has shape {list(array.shape)}, expected {expected}")
+        self._td.set("action", _actions(array[None], (1, self.action_space.shape[0])))
         out = self.env.step(self._td)["next"]
         self._td = out
+        self._ended = bool(out["done"][0, 0])
         info = self._unbatch(_info(out, self._metrics))
         return (
             self._unbatch(_obs(out)),

@@ -9,22 +9,39 @@ A checkpoint is one ``torch.save`` dict:
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from roto_trl.trainers.errors import WriteError
+
 LATEST = "latest.pt"
 BEST = "best.pt"
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
-    """Write ``state`` to ``path`` through a temporary file, so a kill never leaves half a file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write ``state`` to ``path`` through a temporary file, so a kill never leaves half a file.
+
+    Serialised in memory first, so that a failed write (a full disk) is a plain ``OSError``:
+    the temporary file is removed and :class:`~roto_trl.trainers.errors.WriteError` names the
+    path and the reason; ``path`` keeps its previous content.
+    """
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
     tmp = path.with_name(path.name + ".tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with tmp.open("wb") as handle:
+            handle.write(buffer.getbuffer())
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        raise WriteError(f"cannot write checkpoint {path}: {err.strerror.lower()}") from None
 
 
 def load_checkpoint(path: Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:

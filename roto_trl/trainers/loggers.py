@@ -1,17 +1,25 @@
 """Metrics of a run: CSV files always, plus one optional backend (wandb offline, tensorboard).
 
-Each kind of row (``train``, ``eval``) goes to its own ``<kind>.csv`` in the run directory; its
-columns are those of its first row (later rows must have the same keys, missing ones stay empty).
+Each kind of row (``train``, ``eval``, ``aux``) goes to its own ``<kind>.csv`` in the run
+directory, ``frames`` first. A key that first appears in a later row (an episode metric once the
+first episode ends) adds a column: the file is rewritten with the wider header and the earlier
+rows leave that cell empty (read back as NaN), so every metric logged reaches the CSV.
+
+On resume every CSV is cut back to the checkpoint's frame count (:func:`truncate_csv_logs`), so
+a resumed run reads as one uninterrupted run; TensorBoard hides its later events (``purge_step``);
+wandb keeps what it has (see the README, "Training").
 """
 
 from __future__ import annotations
 
 import csv
 import math
+import os
 from pathlib import Path
 from typing import Any
 
 BACKENDS = ("wandb", "tensorboard", "csv", "none")
+KINDS = ("train", "eval", "aux")  # the CSV files a training run writes
 
 
 class MetricLogger:
@@ -23,7 +31,9 @@ class MetricLogger:
             ``tensorboard``, ``csv`` or ``none`` (both: CSV files only).
         config: the run's config, recorded by the backend.
         name, project: the run's name and the wandb project.
-        resume: append to existing CSV files instead of starting them.
+        resume_frames: the checkpoint's frame count when the run resumes (None: a new run). The
+            CSV files are appended to (cut back to it first with :func:`truncate_csv_logs`) and
+            TensorBoard hides the events logged after it.
     """
 
     def __init__(
@@ -34,7 +44,7 @@ class MetricLogger:
         config: dict | None = None,
         name: str = "",
         project: str = "roto-trl",
-        resume: bool = False,
+        resume_frames: int | None = None,
     ) -> None:
         if backend not in BACKENDS:
             raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {backend!r}")
@@ -42,7 +52,7 @@ class MetricLogger:
         self.backend = backend
         self._files: dict[str, Any] = {}
         self._writers: dict[str, csv.DictWriter] = {}
-        self._resume = resume
+        self._resume = resume_frames is not None
         self._wandb = self._tb = None
         if backend == "wandb":
             import wandb
@@ -53,14 +63,16 @@ class MetricLogger:
                 dir=str(self.run_dir),
                 config=config,
                 mode="offline",
-                resume="allow" if resume else None,
-                id=self.run_dir.name.replace("/", "-") if resume else None,
+                resume="allow" if self._resume else None,
+                id=self.run_dir.name.replace("/", "-") if self._resume else None,
                 settings=wandb.Settings(console="off", silent=True),
             )
         elif backend == "tensorboard":
             from torch.utils.tensorboard import SummaryWriter
 
-            self._tb = SummaryWriter(log_dir=str(self.run_dir / "tensorboard"))
+            # events at steps past the checkpoint, from before the resume, are hidden
+            purge = None if resume_frames is None else int(resume_frames) + 1
+            self._tb = SummaryWriter(log_dir=str(self.run_dir / "tensorboard"), purge_step=purge)
 
     def log(self, kind: str, metrics: dict[str, float], step: int, *, csv_only: bool = False) -> None:
         """Record ``metrics`` (scalars) of ``kind`` at ``step`` (env frames).
@@ -68,16 +80,10 @@ class MetricLogger:
         ``csv_only`` keeps fine-grained rows (one per minibatch) out of the backend.
         """
         row = {"frames": int(step), **{k: float(v) for k, v in metrics.items()}}
-        writer = self._writers.get(kind)
-        if writer is None:
-            path = self.run_dir / f"{kind}.csv"
-            append = self._resume and path.is_file()
-            fields = _header(path) if append else list(row)
-            handle = path.open("a" if append else "w", newline="")
-            writer = csv.DictWriter(handle, fieldnames=fields, extrasaction="ignore")
-            if not append:
-                writer.writeheader()
-            self._files[kind], self._writers[kind] = handle, writer
+        writer = self._writers.get(kind) or self._open(kind, list(row))
+        new = [key for key in row if key not in writer.fieldnames]
+        if new:
+            writer = self._widen(kind, new)
         writer.writerow(row)
         self._files[kind].flush()
         if csv_only:
@@ -88,6 +94,46 @@ class MetricLogger:
         if self._tb is not None:
             for key, value in finite.items():
                 self._tb.add_scalar(key, value, int(step))
+
+    def _open(self, kind: str, fields: list[str]) -> csv.DictWriter:
+        path = self.run_dir / f"{kind}.csv"
+        append = self._resume and path.is_file() and path.stat().st_size > 0
+        if append:
+            fields = _header(path)
+        handle = path.open("a" if append else "w", newline="")
+        writer = csv.DictWriter(handle, fieldnames=fields)
+        if not append:
+            writer.writeheader()
+        self._files[kind], self._writers[kind] = handle, writer
+        return writer
+
+    def _widen(self, kind: str, new: list[str]) -> csv.DictWriter:
+        """Rewrite ``<kind>.csv`` with ``new`` columns added (earlier rows leave them empty)."""
+        fields = [*self._writers[kind].fieldnames, *new]
+        self._files.pop(kind).close()
+        path = self.run_dir / f"{kind}.csv"
+        with path.open(newline="") as handle:
+            rows = list(csv.DictReader(handle))
+        tmp = path.with_name(path.name + ".tmp")
+        with tmp.open("w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=fields)
+            writer.writeheader()
+            writer.writerows(rows)
+        os.replace(tmp, path)
+        handle = path.open("a", newline="")
+        self._files[kind] = handle
+        self._writers[kind] = csv.DictWriter(handle, fieldnames=fields)
+        return self._writers[kind]
+
+    def truncate(self, frames: int) -> None:
+        """Cut every CSV back to ``frames`` (after a failed checkpoint: the logs then match the
+        last good one); later rows reopen the files."""
+        for handle in self._files.values():
+            handle.close()
+        self._files.clear()
+        self._writers.clear()
+        self._resume = True
+        truncate_csv_logs(self.run_dir, frames)
 
     def close(self) -> None:
         for handle in self._files.values():
@@ -101,6 +147,40 @@ class MetricLogger:
 def _header(path: Path) -> list[str]:
     with path.open(newline="") as handle:
         return next(csv.reader(handle))
+
+
+def truncate_csv(path: Path, frames: int) -> int:
+    """Drop the rows of a metrics CSV from the first one past ``frames`` (or the first one
+    half-written by a killed process); returns how many.
+
+    Cut in place (``os.truncate``): it needs no free disk space, so it also works on a full disk.
+    """
+    with Path(path).open("rb") as handle:
+        lines = handle.readlines()
+    if not lines:
+        return 0
+    offset = len(lines[0])
+    for i, line in enumerate(lines[1:], start=1):
+        try:
+            row_frames = float(line.split(b",", 1)[0])
+        except ValueError:
+            row_frames = math.inf
+        if not line.endswith(b"\n") or row_frames > frames:
+            os.truncate(path, offset)
+            return len(lines) - i
+        offset += len(line)
+    return 0
+
+
+def truncate_csv_logs(run_dir: Path, frames: int) -> dict[str, int]:
+    """Cut ``train.csv``, ``eval.csv`` and ``aux.csv`` of a run back to ``frames``; the rows
+    dropped per file."""
+    dropped = {}
+    for kind in KINDS:
+        path = Path(run_dir) / f"{kind}.csv"
+        if path.is_file():
+            dropped[kind] = truncate_csv(path, frames)
+    return dropped
 
 
 def read_csv(path: Path) -> dict[str, list[float]]:

@@ -29,3 +29,14 @@ def parse_key_values(prog: str, argv: list[str], defaults: dict, example: str) -
     if missing:
         raise SystemExit(f"{prog}: give {' '.join(k + '=...' for k in missing)}; e.g. {example}")
     return cfg
+
+
+def check_int(prog: str, cfg: DictConfig, key: str, minimum: int, *, optional: bool = False) -> None:
+    """Exit with one line naming ``key`` unless ``cfg[key]`` is an integer >= ``minimum`` (or
+    null when ``optional``)."""
+    value = cfg[key]
+    if value is None and optional:
+        return
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        null = " or null" if optional else ""
+        raise SystemExit(f"{prog}: {key} must be an integer >= {minimum}{null}, got {value!r}")
