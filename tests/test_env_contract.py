@@ -174,3 +174,29 @@ def test_action_smoothing_moves_targets_part_way():
     top = base._ctrl_lo + base._ctrl_span
     assert torch.allclose(base._target, 0.25 * top + 0.75 * start)
     env.close()
+
+
+@pytest.mark.parametrize(
+    ("args", "kwargs", "match"),
+    [
+        (("bounce", True), {}, "num_envs must be a positive integer, got True"),
+        (
+            ("bounce", 2),
+            {"reward_scales": {"air": "abc"}},
+            r"reward_scales\['air'\] must be a number, got 'abc'",
+        ),
+        (("bounce", 10_000_000), {}, r"needs about \d+\.\d GiB .* GiB available; use fewer worlds"),
+    ],
+)
+def test_impossible_envs_are_refused_before_allocating(args, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        make_env(*args, **kwargs)
+
+
+def test_a_closed_env_says_so():
+    env = make_env("find", 2)
+    td = env.reset()
+    env.close()
+    for use in (env.reset, lambda: env.step(td.set("action", torch.zeros(2, 9)))):
+        with pytest.raises(RuntimeError, match="FindEnv is closed"):
+            use()

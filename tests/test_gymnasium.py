@@ -74,3 +74,25 @@ def test_find_metrics_in_info_and_bad_actions():
     with pytest.raises(ValueError, match=r"actions have shape \[2, 8\], expected \[2, 9\]"):
         envs.step(np.zeros((2, 8)))
     envs.close()
+
+
+def test_a_closed_vector_env_says_so():
+    envs = gymnasium.make_vec("RoTO/Bounce-v0", num_envs=2)
+    envs.reset(seed=0)
+    envs.close()
+    with pytest.raises(RuntimeError, match="BounceEnv is closed"):
+        envs.step(envs.action_space.sample())
+
+
+def test_single_env_takes_exact_actions_and_no_step_after_the_end():
+    env = gymnasium.make("RoTO/Find-v0", episode_steps=3).unwrapped
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match=r"action has shape \[3, 3\], expected \[9\]"):
+        env.step(np.zeros((3, 3)))
+    truncated = [env.step(env.action_space.sample())[3] for _ in range(3)]
+    assert truncated == [False, False, True]
+    with pytest.raises(RuntimeError, match=r"episode has ended .* call reset\(\)"):
+        env.step(env.action_space.sample())
+    env.reset()
+    env.step(env.action_space.sample())
+    env.close()

@@ -292,3 +292,18 @@ def test_analyse_mi_needs_k_of_at_least_one(tmp_path, k, capsys):
     assert not (tmp_path / "out").exists()
     with pytest.raises(ValueError, match="k >= 1"):
         ksg_mutual_information([[0.0]] * 10, [[1.0]] * 10, k=0)
+
+
+# ---------------------------------------------------------------------------- multirun
+
+
+def test_a_multirun_with_one_run_dir_gives_each_job_its_own(tmp_path):
+    run = tmp_path / "runs"
+    done = subprocess.run(
+        [*TRAIN, "-m", *tiny(run, "total_frames=128", "seed=0,1")],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert [load_checkpoint(run / job)["config"]["seed"] for job in ("0", "1")] == [0, 1]

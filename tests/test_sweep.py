@@ -181,7 +181,8 @@ def test_failing_trials_stop_the_sweep_after_max_failures(tmp_path):
         "hydra.sweeper.max_failures=2",
         "+env.overrides.reward_scales.dist=choice(inf)",
     )
-    assert failed.returncode != 0 and "2 trials in a row failed" in failed.stderr
+    assert failed.returncode == 1 and "2 trials in a row failed" in failed.stderr
+    assert "Traceback" not in failed.stderr
     assert [t.state for t in load_study(tmp_path).get_trials()] == [TrialState.FAIL] * 2
 
 
@@ -284,3 +285,18 @@ def test_two_workers_share_a_postgresql_study(tmp_path, postgresql_url):
         assert json.loads((run_dir / "trial.json").read_text())["trial_number"] == trial.number
         assert trial.value == pytest.approx(run_objective(run_dir))
     assert len({t.user_attrs["worker"] for t in trials}) == 2  # both workers ran trials
+
+
+def test_bad_sweep_setups_get_one_line(tmp_path):
+    (tmp_path / "study.db").write_text("not a database")
+    corrupt = sweep(f"hydra.sweep.dir={tmp_path}")
+    assert corrupt.returncode == 2 and "Traceback" not in corrupt.stderr
+    assert (
+        f"storage sqlite:///{tmp_path}/study.db cannot be opened (file is not a database)" in corrupt.stderr
+    )
+    all_fixed = sweep(f"hydra.sweep.dir={tmp_path / 'fixed'}", "agent.lr=1e-4")
+    assert all_fixed.returncode == 2 and "Traceback" not in all_fixed.stderr
+    assert "the command line fixes every key of the search space" in all_fixed.stderr
+    (tmp_path / "study.json").write_text("{bad")
+    with pytest.raises(SystemExit, match=f"{tmp_path}/study.json is not valid JSON"):
+        sweep_main(["summary", str(tmp_path)])

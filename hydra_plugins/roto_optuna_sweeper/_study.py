@@ -57,6 +57,10 @@ class TrialFailed(Exception):
     """A trial's run failed; the message is its ``fail_reason``."""
 
 
+class SweepStopped(RuntimeError):
+    """The sweep cannot go on (``max_failures`` failed trials in a row); reported in one line."""
+
+
 def distribution(override: Override) -> BaseDistribution:
     """The Optuna distribution of one Hydra sweep: ``choice``/``a,b`` -> categorical,
     ``range`` -> int (or float) with its step, ``interval`` -> float (int with the ``int`` tag);
@@ -171,6 +175,13 @@ class StudyLoop:
         parser = OverridesParser.create(config_loader=sweeper.hydra_context.config_loader)
         params = [f"{key}={value}" for key, value in conf.params.items()]
         self.space, self.fixed = search_space(parser.parse_overrides([*params, *arguments]))
+        if not self.space and params:
+            fixed = sorted(conf.params)
+            raise ValueError(
+                "nothing to search: the command line fixes every key of the search space "
+                f"({', '.join(fixed)}); leave at least one of them out, or give it as a sweep such as "
+                "'agent.lr=interval(1e-5, 1e-3)'"
+            )
         if not self.space:
             raise ValueError(
                 "nothing to search: pick a space with hparams_search=<name> (conf/hparams_search/) "
@@ -216,14 +227,19 @@ class StudyLoop:
             if self.count(TrialState.COMPLETE) >= conf.n_trials:
                 break
             if self.failures >= conf.max_failures:
-                raise RuntimeError(
+                raise SweepStopped(
                     f"{self.failures} trials in a row failed (the last: {self.last_failure}); "
                     "fix that and run the same command again to go on"
                 )
             # a set seed moves with the study's size: a resumed sweep does not replay its proposals
             seed = None if conf.seed is None else conf.seed + self.count()
             self.study.sampler = optuna.samplers.TPESampler(n_startup_trials=conf.n_startup_trials, seed=seed)
-            self.study.optimize(self.objective, n_trials=1, catch=(TrialFailed,))
+            verbosity = optuna.logging.get_verbosity()
+            optuna.logging.set_verbosity(optuna.logging.ERROR)  # a failed trial: our line, not its traceback
+            try:
+                self.study.optimize(self.objective, n_trials=1, catch=(TrialFailed,))
+            finally:
+                optuna.logging.set_verbosity(verbosity)
         summary = write_summary(self.study, self.sweep_dir)
         best = self.study.best_trial
         print(

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 from hydra.plugins.sweeper import Sweeper
@@ -47,6 +48,15 @@ class OptunaSweeper(Sweeper):
         )
 
     def sweep(self, arguments: list[str]) -> None:
-        from hydra_plugins.roto_optuna_sweeper._study import run_sweep
+        """Run the study; bad settings (exit status 2) and a stop after ``max_failures`` (1) end
+        the sweep with one line instead of a traceback."""
+        from hydra_plugins.roto_optuna_sweeper._study import SweepStopped, run_sweep
 
-        run_sweep(self, arguments)
+        try:
+            run_sweep(self, arguments)
+        except ValueError as err:
+            print(f"sweep: {err}", file=sys.stderr)
+            sys.exit(2)
+        except SweepStopped as err:
+            print(f"sweep: stopped: {err}", file=sys.stderr)
+            sys.exit(1)

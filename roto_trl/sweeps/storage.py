@@ -61,6 +61,12 @@ def open_storage(
             if attempt == TABLE_RACE_ATTEMPTS:
                 raise
             time.sleep(0.5 + random.random())  # let the winner finish creating the tables
+        except sqlalchemy.exc.DatabaseError as err:  # e.g. a damaged SQLite file
+            reason = str(err.orig).splitlines()[0] if err.orig else type(err).__name__
+            raise ValueError(
+                f"storage {redact(url)} cannot be opened ({reason}); repair it, move it away to "
+                "start a new study, or give another hydra.sweeper.storage"
+            ) from None
 
 
 def _rdb_storage(
@@ -92,7 +98,12 @@ def load_study(sweep_dir: Path, storage: str | None = None, study_name: str | No
     if not sweep_dir.is_dir():
         raise FileNotFoundError(f"no sweep directory {sweep_dir}")
     info_path = sweep_dir / STUDY_FILE
-    info = json.loads(info_path.read_text()) if info_path.is_file() else {}
+    try:
+        info = json.loads(info_path.read_text()) if info_path.is_file() else {}
+    except ValueError as err:
+        raise ValueError(
+            f"{info_path} is not valid JSON ({err}); fix it or give --storage and --study"
+        ) from None
     if not info and (storage is None or study_name is None):
         raise FileNotFoundError(f"{sweep_dir} holds no {STUDY_FILE}; give --storage and --study")
     url = storage_url(storage or info.get("storage"), sweep_dir)
