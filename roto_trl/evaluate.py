@@ -50,8 +50,9 @@ def main(argv: list[str] | None = None) -> Path:
     if not isinstance(cfg.video, bool):
         raise SystemExit(f"evaluate: video must be true or false, got {cfg.video!r}")
     try:
-        if cfg.out is not None:  # before the evaluation, not after it
-            writable_file(Path(str(cfg.out)), "out")
+        out = Path(str(cfg.out)) if cfg.out is not None else Path(str(cfg.run)) / "eval.json"
+        if cfg.out is not None or out.parent.is_dir():  # before the evaluation, not after it
+            writable_file(out, "out")
         out = evaluate_run(
             Path(str(cfg.run)),
             str(cfg.checkpoint),

@@ -425,6 +425,11 @@ def main(cfg: DictConfig) -> float:
                 file=sys.stderr,
             )
         sys.exit(128 + err.signum)
+    except KeyboardInterrupt:  # before the loop's handlers were installed, or after the loop
+        if in_sweep:
+            raise
+        print("train: interrupted", file=sys.stderr)
+        sys.exit(130)
     except NonFiniteError as err:
         if in_sweep:
             raise
