@@ -229,6 +229,14 @@ def test_a_full_disk_at_a_checkpoint_is_one_error_and_keeps_the_logs_consistent(
     assert frames_of(run / "train.csv") == [] and frames_of(run / "eval.csv") == [0]
 
 
+def test_a_full_disk_under_a_csv_log_is_one_error(tmp_path):
+    (tmp_path / "train.csv").symlink_to("/dev/full")
+    logger = MetricLogger(tmp_path, "csv")
+    with pytest.raises(WriteError, match=f"cannot write {tmp_path}/train.csv: no space left on device"):
+        logger.log("train", {"reward": 1.0}, 128)
+    logger.close()  # quietly: the error above was the report
+
+
 def test_unwritable_run_dirs_are_refused_before_any_work(tmp_path):
     a_file = tmp_path / "file"
     a_file.write_text("")

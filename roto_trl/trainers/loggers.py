@@ -12,11 +12,14 @@ wandb keeps what it has (see the README, "Training").
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import math
 import os
 from pathlib import Path
 from typing import Any
+
+from roto_trl.trainers.errors import WriteError
 
 BACKENDS = ("wandb", "tensorboard", "csv", "none")
 KINDS = ("train", "eval", "aux")  # the CSV files a training run writes
@@ -77,15 +80,19 @@ class MetricLogger:
     def log(self, kind: str, metrics: dict[str, float], step: int, *, csv_only: bool = False) -> None:
         """Record ``metrics`` (scalars) of ``kind`` at ``step`` (env frames).
 
-        ``csv_only`` keeps fine-grained rows (one per minibatch) out of the backend.
+        ``csv_only`` keeps fine-grained rows (one per minibatch) out of the backend. A failed
+        write (a full disk) raises :class:`~roto_trl.trainers.errors.WriteError` naming the file.
         """
         row = {"frames": int(step), **{k: float(v) for k, v in metrics.items()}}
-        writer = self._writers.get(kind) or self._open(kind, list(row))
-        new = [key for key in row if key not in writer.fieldnames]
-        if new:
-            writer = self._widen(kind, new)
-        writer.writerow(row)
-        self._files[kind].flush()
+        try:
+            writer = self._writers.get(kind) or self._open(kind, list(row))
+            new = [key for key in row if key not in writer.fieldnames]
+            if new:
+                writer = self._widen(kind, new)
+            writer.writerow(row)
+            self._files[kind].flush()
+        except OSError as err:
+            raise WriteError(f"cannot write {self.run_dir / f'{kind}.csv'}: {err.strerror.lower()}") from None
         if csv_only:
             return
         finite = {f"{kind}/{k}": v for k, v in row.items() if k != "frames" and math.isfinite(v)}
@@ -137,7 +144,8 @@ class MetricLogger:
 
     def close(self) -> None:
         for handle in self._files.values():
-            handle.close()
+            with contextlib.suppress(OSError):  # the buffered row of a failed write: log() reported it
+                handle.close()
         if self._wandb is not None:
             self._wandb.finish()
         if self._tb is not None:
