@@ -70,7 +70,7 @@ def test_a_fixed_action_moves_the_end_effector_by_centimetres(env):
     start = ee_pos(hold_pose(env, 5))
     base = env.base_env
     action = base.default_pose_action().expand(2, -1).clone()
-    action[:, 0] += 0.2  # the base joint turns by 0.2 of its half range (about 34 degrees)
+    action[:, 0] += 0.2  # the base joint turns by 0.2 of its half range (about 33 degrees)
     td = env.reset()
     for _ in range(60):
         td = env.step(td.set("action", action))["next"]
