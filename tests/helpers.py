@@ -47,15 +47,18 @@ def random_actions(env, steps: int, seed: int = 0):
 def franka_targets_for(base, ee_pos, fingers: float = 0.04, iters: int = 200):
     """Franka joint targets ``[9]`` that put the end-effector frame at ``ee_pos``, pointing down.
 
-    Damped least squares on the env's model from its ready pose (position and the gripper's
-    z axis straight down; the finger slides set to ``fingers`` metres each).
+    Damped least squares on the env's model and its end-effector site (``mj_jacSite``) from the
+    ready pose (position and the gripper's z axis straight down; the finger slides set to
+    ``fingers`` metres each).
     """
     import mujoco
     import numpy as np
 
+    from roto_trl.envs.find import TCP_SITE
+
     m = base.mj_model
     d = mujoco.MjData(m)
-    site = m.site("end_effector").id
+    site = m.site(TCP_SITE).id
     q = base._default_ctrl.copy()
     jp, jr = np.zeros((3, m.nv)), np.zeros((3, m.nv))
     for _ in range(iters):

@@ -5,8 +5,11 @@ placed uniformly on the plate and the arm's joints start within +-``joint_reset_
 ``READY_POSE``, the gripper open. Two thin pads on the inner finger surfaces are the tactile
 sensors; by collision groups (``assets/find.xml``) they feel only the sphere and each other.
 Reward (the paper's Table A2): ``dist`` = 1 - tanh(d / 0.1), d the distance from the end-effector
-frame (the site between the fingers, Isaac Lab's Franka TCP) to the sphere centre. No termination;
-300 steps (5 s).
+frame (``TCP_SITE``: the tool centre point between the fingertips, 1 cm short of their ends, as
+Isaac Lab's Franka TCP) to the sphere centre. With the open fingers around the sphere the frame
+can reach its centre without the fingertips touching the plate, so every tolerance is reachable.
+No termination; 300 steps (5 s). The joint targets are smoothed, ``action_ema`` = 0.3 by default
+(the authors' release; the paper is silent).
 
 Metrics in every step's output: ``object_distance`` [N, 1] (d, metres) and ``find_time``
 [N, len(tolerances)]: the time in seconds at which d first fell below each tolerance this
@@ -30,9 +33,10 @@ from roto_trl.envs.scene import CONTROL_DT
 SCENE = "find.xml"
 N_FRANKA_JOINTS = 9  # 7 arm joints, 2 finger slides
 N_ARM_JOINTS = 7
-# The gripper pointing straight down, fingers opening along y, its end-effector frame 12 cm
-# above the plate's centre (0.5, 0, 0.01) (radians; metres for the open fingers). Solved once by
-# damped least squares on this scene's kinematics; tests/test_find.py checks where it points.
+# The gripper pointing straight down, fingers opening along y, its end-effector frame 8 cm above
+# the plate's centre (0.5, 0, 0.01), the fingertips 7 cm (radians; metres for the open fingers).
+# Solved once by damped least squares on this scene's kinematics; tests/test_find.py checks where
+# it points.
 READY_POSE = {
     "panda0_joint1": 0.0, "panda0_joint2": 0.199, "panda0_joint3": 0.0, "panda0_joint4": -2.401,
     "panda0_joint5": 0.0, "panda0_joint6": 1.03, "panda0_joint7": 0.0,
@@ -49,6 +53,13 @@ FINGER_PADS = ("left_pad", "right_pad")
 # Pads: 1.6 x 50 mm x 2 mm plates on the inner surface of each finger, from 4 to 9 cm along it.
 PAD_HALF_SIZE = (0.008, 0.001, 0.025)
 PAD_POS = {"panda0_leftfinger": (0.0, -0.002, 0.065), "panda0_rightfinger": (0.0, 0.002, 0.065)}
+# The end-effector frame, a site on the package's last link: on the gripper axis 1 cm short of the
+# fingertip ends (finger bodies at 0.1654, their collision capsules end 0.0875 + 0.007 further:
+# 0.2599) and turned like the hand (z along the fingers, the fingers opening along its y axis).
+TCP_SITE = "roto:tcp"
+TCP_BODY = "panda0_link7"
+TCP_POS = (0.0, 0.0, 0.25)
+TCP_QUAT = (0.9238795, 0.0, 0.0, -0.3826834)
 # the privileged state (never an agent input; the mutual-information analysis reads it), in order
 STATE_NAMES = ("sphere_x", "sphere_y", "sphere_z", "ee_x", "ee_y", "ee_z")
 STATE_SIZE = len(STATE_NAMES)
@@ -76,6 +87,9 @@ def first_times(
 class FindConfig(TaskConfig):
     """Settings of Find (see ``TaskConfig`` for the common ones).
 
+    Find's defaults differ from ``TaskConfig``'s in ``episode_steps`` (300), ``history`` (16) and
+    ``action_ema`` (0.3: the authors' release smooths Find's joint targets, not the Shadow tasks').
+
     Attributes:
         joint_reset_deg: arm joints start uniformly within +- this many degrees of the ready pose.
         tolerances: distances (m) whose first-reach times are reported in ``find_time``; the
@@ -84,6 +98,7 @@ class FindConfig(TaskConfig):
 
     episode_steps: int = 300
     history: int = 16
+    action_ema: float = 0.3
     joint_reset_deg: float = 7.0
     tolerances: tuple[float, ...] = (0.03, 0.01, 0.0005)
     reward_scales: dict[str, float] = field(default_factory=lambda: dict(REWARD_SCALES))
@@ -95,6 +110,14 @@ class FindConfig(TaskConfig):
         self.tolerances = tuple(float(t) for t in self.tolerances)
         if not self.tolerances or min(self.tolerances) <= 0.0:
             raise ValueError(f"tolerances must be a non-empty list of distances > 0 m, got {self.tolerances}")
+
+
+def add_tcp_site(spec: mujoco.MjSpec) -> None:
+    """Add the end-effector frame ``TCP_SITE`` to the package's last link in the scene's spec.
+
+    In site group 4, which renders hide by default: it marks a point, it is not a part.
+    """
+    spec.body(TCP_BODY).add_site(name=TCP_SITE, pos=TCP_POS, quat=TCP_QUAT, size=(0.005, 0, 0), group=4)
 
 
 def add_finger_pads(spec: mujoco.MjSpec) -> None:
@@ -161,6 +184,7 @@ class FindEnv(RobotTaskEnv):
 
     def _edit_spec(self, spec: mujoco.MjSpec) -> None:
         add_finger_pads(spec)
+        add_tcp_site(spec)
 
     def _make_obs_spec(self) -> dict:
         n = self.num_envs

@@ -4,6 +4,11 @@ A task subclasses ``RobotTaskEnv`` and declares, as class attributes, its scene 
 sensor names, default pose and episode metrics; this class maps actions to joint targets, reads
 joint angles, velocities and contact forces, and holds the settings common to every task
 (``TaskConfig``).
+
+Actions map onto the range each driven joint can really reach (``commanded_range``): its joint
+limits, narrowed by any limited fixed tendon through it (the Shadow Hand's coupled middle joints),
+never the actuator's control range, which in the kitchen Franka is wider than the joints' ranges
+and would leave part of the action range doing nothing.
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ class TaskConfig:
         substeps: physics steps per 60 Hz control step (timestep = 1 / (60 * substeps)).
         episode_steps: control steps before truncation.
         action_ema: smoothing of the joint targets, target <- ema * new + (1 - ema) * old
-            (1.0 = none).
+            (1.0 = none; Find's default is 0.3, as in the authors' release).
         contact_threshold: force in newtons above which a sensor reads 1 (0 = any contact).
         history: number of readings stacked in the policy inputs.
         num_threads: physics worker threads (None: every core this process may use).
@@ -51,6 +56,53 @@ class TaskConfig:
             raise ValueError(f"history must be >= 1, got {self.history}")
         if int(self.episode_steps) < 1:
             raise ValueError(f"episode_steps must be >= 1, got {self.episode_steps}")
+
+
+def tendon_bounds(
+    coef: float, others_low: float, others_high: float, length_low: float, length_high: float
+) -> tuple[float, float]:
+    """The positions q of one joint that a limited fixed tendon allows.
+
+    The tendon's length is ``coef * q + rest`` with ``rest``, the other joints' part, anywhere in
+    ``[others_low, others_high]``; q is allowed when some ``rest`` puts the length in
+    ``[length_low, length_high]``.
+
+    Returns:
+        ``(low, high)`` of q (``coef`` must be non-zero).
+    """
+    low, high = (length_low - others_high) / coef, (length_high - others_low) / coef
+    return (low, high) if coef > 0 else (high, low)
+
+
+def commanded_range(m: mujoco.MjModel, actuator: int) -> tuple[float, float]:
+    """The joint positions actuator ``actuator`` can drive its joint to.
+
+    The joint's range, narrowed by every limited fixed tendon through the joint (the tendon's
+    other joints anywhere in their ranges) and by the actuator's control range, so that a target
+    in it is neither clipped by MuJoCo nor beyond where the joint can go.
+    """
+    joint = int(m.actuator_trnid[actuator, 0])
+    low, high = (float(v) for v in m.jnt_range[joint])
+    for t in range(m.ntendon):
+        adr, num = int(m.tendon_adr[t]), int(m.tendon_num[t])
+        wraps = range(adr, adr + num)
+        if not m.tendon_limited[t] or any(m.wrap_type[w] != mujoco.mjtWrap.mjWRAP_JOINT for w in wraps):
+            continue
+        coef = {int(m.wrap_objid[w]): float(m.wrap_prm[w]) for w in wraps}
+        if coef.get(joint, 0.0) == 0.0:
+            continue
+        ends = [(c * m.jnt_range[j, 0], c * m.jnt_range[j, 1]) for j, c in coef.items() if j != joint]
+        t_low, t_high = tendon_bounds(
+            coef[joint], sum(min(e) for e in ends), sum(max(e) for e in ends), *m.tendon_range[t]
+        )
+        low, high = max(low, t_low), min(high, t_high)
+    if m.actuator_ctrllimited[actuator]:
+        ctrl_low, ctrl_high = (float(v) for v in m.actuator_ctrlrange[actuator])
+        low, high = max(low, ctrl_low), min(high, ctrl_high)
+    if not low < high:
+        name = m.actuator(actuator).name
+        raise RuntimeError(f"actuator {name} can drive its joint nowhere: range ({low}, {high})")
+    return low, high
 
 
 def sensor_slice(m: mujoco.MjModel, name: str) -> slice:
@@ -85,10 +137,12 @@ class RobotTaskEnv(BatchedMujocoEnv):
     """Base of the tasks: action mapping, joint and contact observations, sensor bookkeeping.
 
     The robot's joints come first in the model and are the ones reported; each actuator drives
-    one joint to an absolute target. Observation entries (per env): ``joint_pos`` [J] rad (m for
-    slide joints), ``joint_vel`` [J], ``contact_force`` [S] N (largest net contact force on each
-    sensor over the control step's substeps, so that a contact shorter than a control step is
-    not missed), plus the task's ``state`` and episode metrics.
+    one joint to an absolute target, and the action [-1, 1] of actuator i maps linearly onto
+    ``[target_low[i], target_high[i]]`` (``commanded_range``: the joint's reachable range).
+    Observation entries (per env): ``joint_pos`` [J] rad (m for slide joints), ``joint_vel`` [J],
+    ``contact_force`` [S] N (largest net contact force on each sensor over the control step's
+    substeps, so that a contact shorter than a control step is not missed), plus the task's
+    ``state`` and episode metrics.
 
     Class attributes a task sets:
         SCENE: scene file in ``assets/``; ROBOT: robot files to load (``"hand"``, ``"franka"``).
@@ -139,8 +193,10 @@ class RobotTaskEnv(BatchedMujocoEnv):
         self.joint_names = tuple(names[: self.N_JOINTS])
         self.joint_low = torch.as_tensor(m.jnt_range[: self.N_JOINTS, 0], dtype=torch.float32)
         self.joint_high = torch.as_tensor(m.jnt_range[: self.N_JOINTS, 1], dtype=torch.float32)
-        self._ctrl_lo = torch.as_tensor(m.actuator_ctrlrange[:, 0])
-        self._ctrl_span = torch.as_tensor(m.actuator_ctrlrange[:, 1] - m.actuator_ctrlrange[:, 0])
+        if any(m.actuator_trntype[a] != mujoco.mjtTrn.mjTRN_JOINT for a in range(m.nu)):
+            raise RuntimeError(f"{self.SCENE}: every actuator must drive one joint")
+        ranges = torch.tensor([commanded_range(m, a) for a in range(m.nu)], dtype=torch.float64)
+        self.target_low, self.target_high = ranges[:, 0], ranges[:, 1]
         self._act_joint = np.asarray(m.actuator_trnid[:, 0])
         if int(self._act_joint.max()) >= self.N_JOINTS:
             raise RuntimeError(f"{self.SCENE}: an actuator drives a joint past the robot's {self.N_JOINTS}")
@@ -171,15 +227,20 @@ class RobotTaskEnv(BatchedMujocoEnv):
             "contact_force": sensor_force(reading, self._sensor_cols),
         }
 
+    def targets_for_action(self, action: torch.Tensor) -> torch.Tensor:
+        """Joint targets ``[..., nu]`` (float64) of ``action`` ``[..., nu]``: -1 and +1 map onto the
+        ends of each joint's ``target_low``/``target_high``, linearly; values outside are clipped."""
+        span = self.target_high - self.target_low
+        return self.target_low + (action.double().clamp(-1.0, 1.0) + 1.0) * 0.5 * span
+
     def _prepare_ctrl(self, action: torch.Tensor) -> np.ndarray:
-        target = self._ctrl_lo + (action.double().clamp(-1.0, 1.0) + 1.0) * 0.5 * self._ctrl_span
+        target = self.targets_for_action(action)
         ema = self.config.action_ema
         self._target = target if ema == 1.0 else ema * target + (1.0 - ema) * self._target
         return self._target.numpy()
 
     def _ctrl_for_state(self, idx: np.ndarray, qpos: np.ndarray) -> np.ndarray:
-        lo = self._ctrl_lo.numpy()
-        ctrl = np.clip(qpos[:, self._act_joint], lo, lo + self._ctrl_span.numpy())
+        ctrl = np.clip(qpos[:, self._act_joint], self.target_low.numpy(), self.target_high.numpy())
         self._target[idx] = torch.from_numpy(ctrl)
         return ctrl
 
@@ -188,7 +249,7 @@ class RobotTaskEnv(BatchedMujocoEnv):
     def action_for_targets(self, targets: np.ndarray | torch.Tensor) -> torch.Tensor:
         """The action ``[..., nu]`` in [-1, 1] whose joint targets are ``targets`` (clipped)."""
         targets = torch.as_tensor(targets, dtype=torch.float64)
-        action = 2.0 * (targets - self._ctrl_lo) / self._ctrl_span - 1.0
+        action = 2.0 * (targets - self.target_low) / (self.target_high - self.target_low) - 1.0
         return action.clamp(-1.0, 1.0).float()
 
     def default_pose_action(self) -> torch.Tensor:

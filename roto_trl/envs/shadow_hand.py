@@ -43,8 +43,8 @@ class ShadowTaskConfig(TaskConfig):
 
     Attributes:
         hand_reset_noise: at reset each joint moves this fraction of the way from the default
-            pose towards a point drawn uniformly in its range (Isaac Lab's convention for
-            "+-20 % around the default pose").
+            pose towards a point drawn uniformly in the range its action spans (Isaac Lab's
+            convention for "+-20 % around the default pose").
     """
 
     hand_reset_noise: float = 0.2
@@ -89,9 +89,8 @@ class ShadowHandEnv(RobotTaskEnv):
     def _sample_hand(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Hand joint positions ``[n, 24]`` and actuator targets ``[n, 20]`` for a new episode."""
         n = len(idx)
-        lo = self._ctrl_lo.numpy()
-        hi = lo + self._ctrl_span.numpy()
-        toward = self.rng.uniform(lo, hi, size=(n, N_HAND_ACTUATORS))
+        low, high = self.target_low.numpy(), self.target_high.numpy()
+        toward = self.rng.uniform(low, high, size=(n, N_HAND_ACTUATORS))
         ctrl = self._default_ctrl + self.config.hand_reset_noise * (toward - self._default_ctrl)
         qpos = np.zeros((n, N_HAND_JOINTS))
         qpos[:, self._act_joint] = ctrl
