@@ -169,6 +169,24 @@ def test_kl_adaptive_lr_is_logged_and_restored_on_resume(tmp_path):
     assert lrs == pytest.approx([1e-3 / 1.5 ** (2 * i) for i in (1, 2, 3, 4)])  # continues, not restarts
 
 
+def test_resume_restores_both_optimisers_of_an_ssl_run(tmp_path):
+    run = tmp_path / "run"
+    train(compose_cfg(["+exp=bounce_fd", *TINY, "ssl.seq_len=4", "total_frames=256", f"run_dir={run}"]))
+    state = load_checkpoint(run)
+
+    def adam_steps(optimizer_state):
+        return {int(s["step"]) for s in optimizer_state["state"].values()}
+
+    # 2 iterations x 2 epochs x 2 minibatches: every step moves both optimisers once
+    assert adam_steps(state["optimizer"]) == adam_steps(state["aux"]["optimizer"]) == {8}
+    config = OmegaConf.load(run / "config.yaml")
+    config.total_frames = 512
+    OmegaConf.save(config, run / "config.yaml")
+    train(compose_cfg([f"resume={run}"]))
+    state = load_checkpoint(run)
+    assert adam_steps(state["optimizer"]) == adam_steps(state["aux"]["optimizer"]) == {16}
+
+
 def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
     run = tmp_path / "run"
     train(compose_cfg(["+exp=find_ppo", *TINY, "total_frames=128", f"run_dir={run}"]))

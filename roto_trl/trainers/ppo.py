@@ -121,7 +121,8 @@ def ppo_update(
             epoch_kl.append(diag["kl_k3"])
         if lr_schedule is not None:
             lr_schedule.step(sum(epoch_kl) / len(epoch_kl))
-    if not all(bool(torch.isfinite(p).all()) for p in params):
+    trained = [*params, *(aux.loss.auxiliary_parameters() if aux is not None else [])]
+    if not all(bool(torch.isfinite(p).all()) for p in trained):
         raise NonFiniteError("a parameter became NaN or inf after the update; try a smaller agent.lr")
     keys = dict.fromkeys(k for row in rows for k in row)
     means = {k: sum(r[k] for r in rows if k in r) / sum(k in r for r in rows) for k in keys}
