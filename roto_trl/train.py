@@ -43,6 +43,7 @@ from roto_trl.trainers.builders import (
     make_aux_update,
     make_collector,
     make_eval_env,
+    make_lr_schedule,
     make_optimizer,
     make_ppo_loss,
     make_rollout_buffer,
@@ -220,6 +221,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     advantage = make_advantage(cfg)
     optimizer = make_optimizer(cfg, agent)
     params = [p for group in optimizer.param_groups for p in group["params"]]
+    lr_schedule = make_lr_schedule(cfg, optimizer)  # None: agent.lr throughout
     aux = make_aux_update(cfg, agent, env)  # the self-supervised objective, or None
 
     frames, iteration, best, wall_before = 0, 0, -math.inf, 0.0
@@ -232,8 +234,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
         best_eval = resumed.get("best_eval_metrics")
         set_rng_state(resumed["rng"], env)
         if aux is not None:
-            aux.loss.load_state_dict(resumed["aux"]["loss"])
-            aux.optimizer.load_state_dict(resumed["aux"]["optimizer"])
+            aux.load_state_dict(resumed["aux"])
         print(f"resuming {run_dir} at {frames:,} frames (iteration {iteration})")
 
     # 3. the collector and the rollout buffer
@@ -264,7 +265,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             "config": OmegaConf.to_container(cfg),
         }
         if aux is not None:
-            state["aux"] = {"loss": aux.loss.state_dict(), "optimizer": aux.optimizer.state_dict()}
+            state["aux"] = aux.state_dict()
         try:
             save_checkpoint(ckpt_dir / name, state)
         except WriteError as err:  # the logs must not run ahead of the last good checkpoint
@@ -297,7 +298,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
 
             t0 = time.perf_counter()
             store_rollout(batch, agent, advantage, buffer, aux)
-            losses, aux_rows = ppo_update(cfg, buffer, agent, loss_fn, optimizer, params, aux)
+            losses, aux_rows = ppo_update(cfg, buffer, agent, loss_fn, optimizer, params, aux, lr_schedule)
             update_s = time.perf_counter() - t0
 
             stats = rollout_stats(batch, ep_return, columns)

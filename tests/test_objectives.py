@@ -1,4 +1,4 @@
-"""Self-supervised objectives: the maths by hand, the modules, EMA, the memory, the optimisers."""
+"""Self-supervised objectives: the maths by hand, the modules, the target encoder, the memory."""
 
 import math
 
@@ -10,7 +10,6 @@ from torch import nn
 from torchrl.objectives import SoftUpdate
 
 from roto_trl.data.memory import AuxMemory
-from roto_trl.modules.agent import Agent
 from roto_trl.objectives import (
     ForwardDynamicsLoss,
     FullReconstructionLoss,
@@ -145,31 +144,25 @@ def test_tfd_tactile_term_is_live():
     assert {"tpr_h1", "tpr_h2", "precision_h2", "loss_dynamics"} <= set(out.keys())
 
 
-def test_ppo_and_auxiliary_optimisers_hold_the_right_parameters():
-    from roto_trl.trainers.auxiliary import AuxiliaryUpdate
-
-    agent = Agent(("prop", "tactile"), P + T, A)
-    loss = TactileReconstructionLoss(agent.common, T)
-    memory = AuxMemory(1, ("prop", "tactile"))
-    rollout = batch((2, 4))
-    rollout["next"] = TensorDict({"done": torch.zeros(2, 4, 1, dtype=torch.bool)}, [2, 4])
-    memory.add(rollout)
-    aux = AuxiliaryUpdate(loss, memory, lr=1e-2, coeff=1.0, batch=6)
-    ppo_params = {id(p) for p in agent.parameters()}
-    aux_params = {id(p) for g in aux.optimizer.param_groups for p in g["params"]}
-    encoder_params = {id(p) for p in agent.encoder.parameters()}
-    heads = {id(p) for m in (agent.policy_head, agent.value_head) for p in m.parameters()}
-    decoder = {id(p) for p in loss.tactile_decoder.parameters()}
-    assert encoder_params <= ppo_params and encoder_params <= aux_params
-    assert not heads & aux_params and not decoder & ppo_params and decoder <= aux_params
-    # one auxiliary step changes the encoder and decoder, never the heads
-    snapshot = {name: p.detach().clone() for name, p in agent.named_parameters()}
-    dec_before = loss.tactile_decoder[1].weight.detach().clone()
-    aux.step()
-    changed = {name for name, p in agent.named_parameters() if not torch.equal(p, snapshot[name])}
-    assert any(n.startswith("encoder.") for n in changed)
-    assert not any(n.startswith(("policy_head.", "value_head.")) for n in changed)
-    assert not torch.equal(loss.tactile_decoder[1].weight, dec_before)
+def test_target_encoder_stays_out_of_the_graph_whatever_the_order():
+    enc = encoder()
+    loss = ForwardDynamicsLoss(enc, A, latent_dim=8)
+    seq = batch((4, 3))
+    loss(seq)  # a forward pass first, THEN the target updater
+    targets = loss.target_encoder_network_params
+    assert not any(t.requires_grad for t in targets.values(True, True))
+    update = SoftUpdate(loss, tau=0.01)
+    optimizer = torch.optim.SGD(loss.parameters(), lr=0.1)
+    before = targets["module", "0", "weight"].clone()
+    gap_before = float((enc.module[0].weight - before).abs().sum())
+    assert gap_before == 0.0  # the target starts as a copy of the encoder
+    loss(seq)["loss_dynamics"].backward()
+    optimizer.step()
+    update.step()
+    online, after = enc.module[0].weight.detach(), targets["module", "0", "weight"]
+    assert torch.allclose(after, before + 0.01 * (online - before), atol=1e-7)
+    assert not torch.equal(after, before)
+    assert not any(t.requires_grad for t in targets.values(True, True))
 
 
 # ---------------------------------------------------------------------------- the memory
@@ -200,7 +193,25 @@ def test_memory_is_fifo_and_stores_contacts_compactly():
     # float32 prop and action, uint8 contacts, bool done, and the buffer's int64 index
     per_step = P * 4 + T * 1 + A * 4 + 1 + 8
     assert memory.nbytes() == 2 * 2 * 6 * per_step
-    assert memory.sample(5)["tactile"].dtype == torch.float32
+
+
+def test_memory_keeps_the_applied_action():
+    memory = AuxMemory(1, ("prop",), action_bounds=(-1.0, 1.0))
+    data = rollout(0.0)
+    data["action"] = torch.tensor([-3.0, -0.5, 2.0]).expand(2, 6, A).clone()  # a wide Gaussian's samples
+    memory.add(data)
+    assert memory.stored()["action"][0, 0, 0].tolist() == [-1.0, -0.5, 1.0]
+
+
+def test_minibatches_cover_the_memory_once_in_disjoint_parts():
+    memory = AuxMemory(1, ("prop", "tactile"))
+    memory.add(rollout(0.0))  # 2 worlds x 6 steps; prop[..., 0] is the step index
+    parts = list(memory.minibatches(4, generator=torch.Generator().manual_seed(0)))
+    assert [p.shape[0] for p in parts] == [3, 3, 3, 3]
+    steps = sorted(float(v) for p in parts for v in p["prop"][:, 0])
+    assert steps == sorted([float(t) for t in range(6)] * 2)  # every step once
+    assert parts[0]["tactile"].dtype == torch.float32
+    assert len(list(memory.minibatches(100))) == 12  # never an empty minibatch
 
 
 def test_sequences_never_cross_an_episode_end():
@@ -210,23 +221,24 @@ def test_sequences_never_cross_an_episode_end():
     # env 0: done at step 2 -> runs starting at 1 or 2 would continue past it
     assert valid[0].tolist() == [True, False, False, True, False, False]
     assert valid[1].tolist() == [False, True, True, True, False, False]
-    seq = memory.sample_sequences(64, 3, generator=torch.Generator().manual_seed(0))
-    steps = seq["prop"][..., 0]
-    assert torch.equal(steps[:, 1:] - steps[:, :-1], torch.ones(64, 2))  # consecutive steps
-    with pytest.raises(ValueError, match="no run of 7 steps"):
-        memory.sample_sequences(4, 7)
+    parts = list(memory.minibatches(2, 3, generator=torch.Generator().manual_seed(0)))
+    assert [p.shape for p in parts] == [torch.Size([3, 3]), torch.Size([2, 3])]  # the 5 valid runs
+    steps = torch.cat([p["prop"][..., 0] for p in parts])
+    assert sorted(steps[:, 0].tolist()) == [0.0, 1.0, 2.0, 3.0, 3.0]
+    assert torch.equal(steps[:, 1:] - steps[:, :-1], torch.ones(5, 2))  # consecutive steps
+    assert list(memory.minibatches(2, 7)) == []
 
 
-def test_auxiliary_step_waits_for_runs_of_n_steps():
+def test_auxiliary_update_waits_for_runs_of_n_steps():
     from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 
     memory = AuxMemory(1, ("prop", "tactile"))
     memory.add(rollout(0.0, dones=[(0, 1), (0, 3), (1, 1), (1, 3)]))  # episodes of at most 2 steps
     loss = ForwardDynamicsLoss(encoder(), A, latent_dim=8)
-    aux = AuxiliaryUpdate(loss, memory, lr=1e-3, coeff=1.0, batch=8, seq_len=3)
-    before = [p.detach().clone() for p in loss.parameters()]
-    assert aux.step() is None
-    assert all(torch.equal(a, b) for a, b in zip(before, loss.parameters(), strict=True))
+    aux = AuxiliaryUpdate(loss, memory, lr=1e-3, coeff=1.0, seq_len=3)
+    assert list(aux.epoch(4)) == []
     memory.add(rollout(10.0))  # a rollout without episode ends replaces it
-    stats = aux.step()
-    assert stats is not None and math.isfinite(stats["loss_dynamics"])
+    parts = list(aux.epoch(4))
+    assert len(parts) == 4 and sum(p.shape[0] for p in parts) == 2 * 4  # 2 worlds x 4 starts
+    total, stats = aux.objective(parts[0])
+    assert total.requires_grad and math.isfinite(stats["loss_dynamics"])

@@ -151,6 +151,42 @@ def test_resume_after_sigkill_continues_frames_and_optimiser(tmp_path):
     assert float(norm_after) == pytest.approx(float(norm_before) + 2 * FRAMES_PER_ITERATION)
 
 
+def test_kl_adaptive_lr_is_logged_and_restored_on_resume(tmp_path):
+    run = tmp_path / "run"
+    # a target no KL stays under: the rate divides by 1.5 after each of the 2 epochs per iteration
+    schedule = ["agent.lr_schedule=kl_adaptive", "agent.kl_target=1e-12", "agent.lr=1e-3"]
+    train(compose_cfg(["+exp=bounce_ppo", *TINY, *schedule, "total_frames=256", f"run_dir={run}"]))
+    table = rows(run / "train.csv")
+    assert [float(r["lr"]) for r in table] == pytest.approx([1e-3 / 1.5**2, 1e-3 / 1.5**4])
+    assert all(float(r["kl_k3_median"]) > 0 for r in table)
+    assert {"kl_approx_median", "clip_fraction_median", "kl_approx", "clip_fraction"} <= set(table[0])
+    assert load_checkpoint(run)["optimizer"]["param_groups"][0]["lr"] == pytest.approx(1e-3 / 1.5**4)
+    config = OmegaConf.load(run / "config.yaml")
+    config.total_frames = 512
+    OmegaConf.save(config, run / "config.yaml")
+    train(compose_cfg([f"resume={run}"]))
+    lrs = [float(r["lr"]) for r in rows(run / "train.csv")]
+    assert lrs == pytest.approx([1e-3 / 1.5 ** (2 * i) for i in (1, 2, 3, 4)])  # continues, not restarts
+
+
+def test_resume_restores_both_optimisers_of_an_ssl_run(tmp_path):
+    run = tmp_path / "run"
+    train(compose_cfg(["+exp=bounce_fd", *TINY, "ssl.seq_len=4", "total_frames=256", f"run_dir={run}"]))
+    state = load_checkpoint(run)
+
+    def adam_steps(optimizer_state):
+        return {int(s["step"]) for s in optimizer_state["state"].values()}
+
+    # 2 iterations x 2 epochs x 2 minibatches: every step moves both optimisers once
+    assert adam_steps(state["optimizer"]) == adam_steps(state["aux"]["optimizer"]) == {8}
+    config = OmegaConf.load(run / "config.yaml")
+    config.total_frames = 512
+    OmegaConf.save(config, run / "config.yaml")
+    train(compose_cfg([f"resume={run}"]))
+    state = load_checkpoint(run)
+    assert adam_steps(state["optimizer"]) == adam_steps(state["aux"]["optimizer"]) == {16}
+
+
 def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
     run = tmp_path / "run"
     train(compose_cfg(["+exp=find_ppo", *TINY, "total_frames=128", f"run_dir={run}"]))

@@ -3,17 +3,20 @@
 Rollouts ``[B, R]`` (B worlds, R steps) are kept FIFO in a ``TensorDictReplayBuffer`` whose
 storage holds ``[N_rollouts, B, R, ...]``; N_rollouts = 1 is exactly the current rollout. Only
 what the objectives need is stored: the observation entries (tactile as uint8, 4x smaller than
-float32), the action and the ``done`` flag of each step.
+float32), the action the env applied (the policy's sample clipped to the action bounds) and the
+``done`` flag of each step.
 
-Sampling:
-  - ``sample(batch)``: ``batch`` single steps, uniformly over everything stored.
-  - ``sample_sequences(batch, n)``: ``batch`` runs of n consecutive steps ``[batch, n]`` that
-    never cross an episode end: no step but the last of a run may be ``done`` (terminated or
-    truncated), since the next observation after a done step belongs to a new episode. TorchRL's
-    ``SliceSampler`` works on flat trajectory storages; this layout is indexed directly instead.
+Minibatches: ``minibatches(count, n)`` is one pass over the memory in ``count`` disjoint
+minibatches of random order, as PPO passes over its rollout: every stored step (n = 1, ``[b]``)
+or every run of n consecutive steps that never crosses an episode end (``[b, n]``): no step but
+the last of a run may be ``done`` (terminated or truncated), since the next observation after a
+done step belongs to a new episode. TorchRL's ``SliceSampler`` works on flat trajectory
+storages; this layout is indexed directly instead.
 """
 
 from __future__ import annotations
+
+from collections.abc import Iterator
 
 import torch
 from tensordict import TensorDictBase
@@ -29,13 +32,19 @@ class AuxMemory:
         num_rollouts: N_rollouts, rollouts kept (oldest dropped first).
         obs_keys: observation entries to keep (``prop``, ``tactile``).
         device: where the memory lives.
+        action_bounds: ``(low, high)`` of the env's action (floats or ``[A]`` tensors); the stored
+            action is the rollout's ``action`` clipped to them, what the env applied. None keeps
+            the action as given (a policy whose samples are already within bounds).
     """
 
-    def __init__(self, num_rollouts: int, obs_keys: tuple[str, ...], device="cpu") -> None:
+    def __init__(
+        self, num_rollouts: int, obs_keys: tuple[str, ...], device="cpu", action_bounds=None
+    ) -> None:
         if int(num_rollouts) < 1:
             raise ValueError(f"the auxiliary memory must hold >= 1 rollout, got {num_rollouts}")
         self.num_rollouts = int(num_rollouts)
         self.obs_keys = tuple(obs_keys)
+        self.action_bounds = action_bounds
         self.buffer = TensorDictReplayBuffer(storage=LazyTensorStorage(self.num_rollouts, device=device))
         self._valid: dict[int, torch.Tensor] = {}
 
@@ -45,6 +54,9 @@ class AuxMemory:
     def add(self, rollout: TensorDictBase) -> None:
         """Store a rollout ``[B, R]`` (the collector's batch), dropping the oldest when full."""
         keep = rollout.select(*self.obs_keys, "action")
+        if self.action_bounds is not None:
+            low, high = (torch.as_tensor(b, device=keep.device) for b in self.action_bounds)
+            keep.set("action", torch.clamp(keep.get("action"), low, high))
         for key in BOOL_KEYS:
             if key in keep:
                 keep.set(key, keep.get(key).to(torch.uint8))
@@ -67,13 +79,6 @@ class AuxMemory:
                 td.set(key, td.get(key).float())
         return td
 
-    def sample(self, batch: int, generator: torch.Generator | None = None) -> TensorDictBase:
-        """``batch`` steps drawn uniformly (with replacement) over all stored steps, ``[batch]``."""
-        data = self.stored()
-        flat = data.reshape(-1)
-        idx = torch.randint(flat.shape[0], (batch,), generator=generator, device=flat.device)
-        return self._as_float(flat[idx])
-
     def valid_starts(self, n: int) -> torch.Tensor:
         """``[M, B, R]`` bool: a run of n steps may start here (it fits and crosses no episode end)."""
         if n not in self._valid:
@@ -88,15 +93,22 @@ class AuxMemory:
             self._valid[n] = valid
         return self._valid[n]
 
-    def sample_sequences(
-        self, batch: int, n: int, generator: torch.Generator | None = None
-    ) -> TensorDictBase:
-        """``batch`` runs of n consecutive steps of one episode each, ``[batch, n]``."""
+    def minibatches(
+        self, count: int, n: int = 1, generator: torch.Generator | None = None
+    ) -> Iterator[TensorDictBase]:
+        """One pass over the memory: ``count`` disjoint minibatches (fewer when fewer than
+        ``count`` steps or runs are stored), in random order, together covering every stored
+        step (n = 1: minibatches ``[b]``) or every run of n steps inside one episode (``[b, n]``).
+        """
         starts = self.valid_starts(n).nonzero()  # [S, 3]
         if starts.shape[0] == 0:
-            raise ValueError(f"no run of {n} steps inside one episode in memory; use a smaller n")
-        pick = starts[torch.randint(starts.shape[0], (batch,), generator=generator, device=starts.device)]
+            return
+        order = torch.randperm(starts.shape[0], generator=generator).to(starts.device)
         data = self.stored()
-        steps = pick[:, 2:3] + torch.arange(n, device=pick.device)  # [batch, n]
-        seq = data[pick[:, 0:1], pick[:, 1:2], steps]
-        return self._as_float(seq)
+        for chunk in order.tensor_split(min(int(count), starts.shape[0])):
+            pick = starts[chunk]
+            if n == 1:
+                yield self._as_float(data[pick[:, 0], pick[:, 1], pick[:, 2]])
+            else:
+                steps = pick[:, 2:3] + torch.arange(n, device=pick.device)  # [b, n]
+                yield self._as_float(data[pick[:, 0:1], pick[:, 1:2], steps])

@@ -35,6 +35,7 @@ class Agent(nn.Module):
     def __init__(self, obs_keys: tuple[str, ...], obs_dim: int, n_actions: int) -> None:
         super().__init__()
         self.obs_keys = tuple(obs_keys)
+        self.n_actions = int(n_actions)
         self.encoder = Encoder(obs_dim)
         self.policy_head = PolicyHead(self.encoder.latent_dim, n_actions)
         self.value_head = ValueHead(self.encoder.latent_dim)

@@ -10,6 +10,7 @@ from torch import nn
 
 ENCODER_SIZES = (1024, 512, 256)
 HEAD_SIZES = (128, 64)
+LOG_STD_RANGE = (-20.0, 2.0)  # the authors' clamp of the policy's log standard deviation
 
 
 def mlp(in_dim: int, sizes: tuple[int, ...], *, layer_norm: bool) -> nn.Sequential:
@@ -47,7 +48,8 @@ class Encoder(nn.Module):
 class PolicyHead(nn.Module):
     """``z`` -> (loc, scale) of a diagonal Gaussian: z -> 128 -> 64 -> n_actions, ELU, tanh mean.
 
-    The log standard deviation is a learned vector independent of the state.
+    The log standard deviation is a learned vector independent of the state, clamped to
+    ``LOG_STD_RANGE`` (no gradient pushes it further once it sits at a bound).
 
     Returns:
         ``loc`` ``[*B, n_actions]`` in (-1, 1) and ``scale`` ``[*B, n_actions]`` > 0.
@@ -61,7 +63,7 @@ class PolicyHead(nn.Module):
 
     def forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         loc = torch.tanh(self.mean(self.body(z)))
-        return loc, self.log_std.exp().expand_as(loc)
+        return loc, self.log_std.clamp(*LOG_STD_RANGE).exp().expand_as(loc)
 
 
 class ValueHead(nn.Module):

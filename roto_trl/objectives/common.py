@@ -24,7 +24,9 @@ class EncoderLoss(LossModule):
     observation entries to one latent entry) as TorchRL's functional ``encoder_network``.
 
     The encoder's parameters are the ones given (shared with the agent, not copied), so an
-    optimiser over ``loss.parameters()`` trains the encoder and this loss's own networks.
+    optimiser over ``loss.parameters()`` trains the encoder and this loss's own networks;
+    ``auxiliary_parameters()`` are this loss's own networks alone (for an optimiser beside one
+    that already steps the encoder).
 
     Args:
         encoder: observation entries -> latent ``[*B, Z]``.
@@ -54,10 +56,20 @@ class EncoderLoss(LossModule):
         with self.encoder_network_params.to_module(self.encoder_network):
             return self.encoder_network(td.select(*self.encoder_network.in_keys))[self.latent_key]
 
+    def auxiliary_parameters(self) -> list[nn.Parameter]:
+        """This loss's own networks' parameters: ``parameters()`` without the encoder's."""
+        encoder = {id(p) for p in self.encoder_network_params.values(True, True)}
+        return [p for p in self.parameters() if id(p) not in encoder]
+
     @torch.no_grad()
     def encode_target(self, td: TensorDictBase) -> torch.Tensor:
-        """Latent of ``td``'s observations with the EMA target encoder (no gradients)."""
-        with self.target_encoder_network_params.to_module(self.encoder_network):
+        """Latent of ``td``'s observations with the EMA target encoder (no gradients).
+
+        The target tensors go into the encoder through a plain view (``.data``): swapped in
+        from the ``TensorDictParams`` itself they would come back wrapped as parameters that
+        require gradients, and a ``SoftUpdate`` built afterwards refuses them.
+        """
+        with self.target_encoder_network_params.data.to_module(self.encoder_network):
             return self.encoder_network(td.select(*self.encoder_network.in_keys))[self.latent_key]
 
     @staticmethod

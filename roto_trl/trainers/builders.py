@@ -1,4 +1,5 @@
-"""Config -> objects, in one place: envs, agent, PPO loss, advantage, collector, buffer, optimiser.
+"""Config -> objects, in one place: envs, agent, PPO loss, advantage, collector, buffer, optimiser,
+learning-rate schedule and the self-supervised objective.
 
 ``cfg`` is the composed Hydra config of ``roto_trl/train.py`` (``conf/train.yaml``), or the plain
 dict a checkpoint stores.
@@ -25,6 +26,7 @@ from roto_trl.objectives import (
     TactileReconstructionLoss,
 )
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
+from roto_trl.trainers.lr_schedule import KLAdaptiveLR
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
 
@@ -86,6 +88,11 @@ def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
     The actor and critic read ``z`` from the minibatch (``agent.encode``), so the shared encoder
     runs once per minibatch. The value head works on the normalised scale: the loop writes
     normalised ``value_target`` and ``state_value`` into the batch before the loss sees it.
+
+    c_ent (``agent.entropy_coeff``) multiplies the Gaussian's entropy per action dimension (the
+    mean over dimensions, skrl's convention, in which the paper's c_ent values were tuned);
+    TorchRL's loss takes the entropy summed over dimensions, so its coefficient is c_ent / A.
+    The logged ``entropy`` is TorchRL's, the sum.
     """
     a = _cfg(cfg).agent
     return ClipPPOLoss(
@@ -94,7 +101,7 @@ def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
         clip_epsilon=float(a.clip_epsilon),
         clip_value=float(a.clip_value),
         entropy_bonus=True,
-        entropy_coeff=float(a.entropy_coeff),
+        entropy_coeff=float(a.entropy_coeff) / agent.n_actions,
         critic_coeff=float(a.critic_coeff),
         loss_critic_type="l2",
         normalize_advantage=bool(a.normalize_advantage),
@@ -137,15 +144,32 @@ def make_rollout_buffer(cfg) -> TensorDictReplayBuffer:
 
 
 def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
-    """One Adam over encoder + policy + value."""
+    """The PPO optimiser: one Adam over encoder + policy + value (the SSL gradient reaches the
+    encoder through the same backward, see ``roto_trl.trainers.auxiliary``)."""
     return torch.optim.Adam(agent.parameters(), lr=float(_cfg(cfg).agent.lr))
+
+
+LR_SCHEDULES = ("fixed", "kl_adaptive")
+
+
+def make_lr_schedule(cfg, optimizer: torch.optim.Optimizer) -> KLAdaptiveLR | None:
+    """``agent.lr_schedule``: None for ``fixed``, else the KL-adaptive rate (``agent.kl_target``)."""
+    a = _cfg(cfg).agent
+    schedule = a.get("lr_schedule", "fixed")  # configs saved before the option existed: fixed
+    if schedule not in LR_SCHEDULES:
+        raise ValueError(f"agent.lr_schedule must be one of {list(LR_SCHEDULES)}, got {schedule!r}")
+    return KLAdaptiveLR(optimizer, float(a.kl_target)) if schedule == "kl_adaptive" else None
 
 
 SSL_OBJECTIVES = ("none", "tr", "fr", "fd", "tfd")
 
 
 def make_aux_update(cfg, agent: Agent, env: TransformedEnv) -> AuxiliaryUpdate | None:
-    """The configured self-supervised objective (``cfg.ssl``) with its optimiser and memory, or None."""
+    """The configured self-supervised objective (``cfg.ssl``) with its optimiser and memory, or None.
+
+    The memory keeps the actions the env applied: the policy's samples clipped to the env's
+    action bounds.
+    """
     cfg = _cfg(cfg)
     ssl = cfg.ssl
     if ssl.name not in SSL_OBJECTIVES:
@@ -170,14 +194,14 @@ def make_aux_update(cfg, agent: Agent, env: TransformedEnv) -> AuxiliaryUpdate |
     else:
         loss = TactileForwardDynamicsLoss(encoder, n_actions, tactile_dim, pos_weight=pos_weight)
     keys = tuple(dict.fromkeys([*agent.obs_keys, "prop", *(["tactile"] if tactile_dim else [])]))
-    memory = AuxMemory(int(ssl.memory_rollouts), keys, device=cfg.device)
-    batch = int(cfg.env.num_envs) * int(cfg.agent.rollout_len) // int(cfg.agent.minibatches)
+    bounds = env.action_spec.space
+    action_bounds = (bounds.low.reshape(-1, n_actions)[0], bounds.high.reshape(-1, n_actions)[0])
+    memory = AuxMemory(int(ssl.memory_rollouts), keys, device=cfg.device, action_bounds=action_bounds)
     return AuxiliaryUpdate(
         loss.to(cfg.device),
         memory,
         lr=float(ssl.lr),
         coeff=float(ssl.coeff),
-        batch=batch,
         seq_len=int(ssl.get("seq_len", 1)),
         tau=float(ssl.get("tau", 0.01)),
     )

@@ -1,7 +1,10 @@
 """Training checkpoints: written atomically, read back with clear errors, loaded as a policy.
 
 A checkpoint is one ``torch.save`` dict:
-    agent, optimizer   state dicts (the agent's includes the value normaliser)
+    agent, optimizer   state dicts (the agent's includes the value normaliser; the optimiser's
+                       its learning rate, which ``agent.lr_schedule=kl_adaptive`` changes)
+    aux                with an SSL objective: its loss (auxiliary networks, target encoder)
+                       and its optimiser (``AuxiliaryUpdate.state_dict``)
     frames, iteration  progress counters; best_eval (best evaluation return so far)
     rng                torch, numpy and the training env's reset generator
     config             the run's resolved config (a plain dict)

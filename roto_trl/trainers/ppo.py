@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import statistics
+
 import torch
 from tensordict import TensorDictBase
 
 from roto_trl.modules.agent import Agent
 from roto_trl.trainers.errors import NonFiniteError
+from roto_trl.trainers.lr_schedule import kl_k3
 
 
 @torch.no_grad()
@@ -48,46 +51,85 @@ def store_rollout(batch: TensorDictBase, agent: Agent, advantage, buffer, aux=No
         aux.memory.add(batch)
 
 
+PPO_TERMS = ("loss_objective", "loss_critic", "loss_entropy")
+MEDIAN_OF = ("kl_approx", "kl_k3", "clip_fraction")  # per-minibatch numbers also logged as medians
+
+
+def minibatch_loss(
+    agent: Agent, loss_fn, minibatch: TensorDictBase, aux=None, aux_data: TensorDictBase | None = None
+) -> tuple[torch.Tensor, TensorDictBase, dict[str, float] | None]:
+    """The paper's Eq. 2 on one minibatch: L = L_PPO + c_aux L_aux.
+
+    Args:
+        minibatch: PPO's minibatch ``[M]`` from the rollout buffer.
+        aux: the ``AuxiliaryUpdate``, or None; ``aux_data`` its minibatch (None: PPO alone).
+
+    Returns:
+        The total loss (scalar, one backward trains encoder, heads and auxiliary networks),
+        PPO's loss outputs and the auxiliary numbers (None without an auxiliary minibatch).
+    """
+    losses = loss_fn(agent.encode(minibatch))
+    total = sum(losses[k] for k in PPO_TERMS)
+    aux_stats = None
+    if aux is not None and aux_data is not None:
+        aux_total, aux_stats = aux.objective(aux_data)
+        total = total + aux_total
+    return total, losses, aux_stats
+
+
 def ppo_update(
-    cfg, buffer, agent, loss_fn, optimizer, params, aux=None
+    cfg, buffer, agent, loss_fn, optimizer, params, aux=None, lr_schedule=None
 ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """``epochs`` passes of ``minibatches`` disjoint minibatches.
 
-    Each minibatch: one PPO step (encoder + heads, gradient norm clipped), then, with an SSL
-    objective ``aux``, one auxiliary step (encoder + auxiliary networks); the encoder gets each
-    loss's gradient once.
+    Each minibatch: one backward of L_PPO + c_aux L_aux (``minibatch_loss``; L_aux on the next of
+    this epoch's auxiliary minibatches, ``aux.epoch``), then the PPO optimiser steps encoder +
+    heads (gradient norm of ``params`` clipped) and the auxiliary optimiser the auxiliary
+    networks. With ``lr_schedule`` the learning rate follows each epoch's mean ``kl_k3``.
 
     Returns:
-        The mean PPO diagnostics (and mean auxiliary losses as ``aux/<name>``), and the numbers
-        of every auxiliary step.
+        The mean diagnostics over minibatches (``ClipPPOLoss``'s, ``grad_norm``, ``kl_k3``:
+        skrl's KL estimate, auxiliary losses as ``aux/<name>``), the medians of ``kl_approx``,
+        ``kl_k3`` and ``clip_fraction`` (``<name>_median``), the learning rate after the update
+        (``lr``), and the numbers of every auxiliary step.
     """
-    sums: dict[str, float] = {}
+    rows: list[dict[str, float]] = []
     aux_rows: list[dict[str, float]] = []
-    steps = 0
     for _ in range(cfg.agent.epochs):
+        aux_batches = aux.epoch(cfg.agent.minibatches) if aux is not None else iter(())
+        epoch_kl = []
         for _ in range(cfg.agent.minibatches):
-            minibatch = agent.encode(buffer.sample())
-            losses = loss_fn(minibatch)
-            total = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
+            aux_data = next(aux_batches, None)
+            total, losses, aux_stats = minibatch_loss(agent, loss_fn, buffer.sample(), aux, aux_data)
             optimizer.zero_grad(set_to_none=True)
+            if aux is not None:
+                aux.zero_grad()
             total.backward()
             grad_norm = torch.nn.utils.clip_grad_norm_(params, cfg.agent.max_grad_norm)
             if not bool(torch.isfinite(total) and torch.isfinite(grad_norm)):
                 bad = [k for k, v in losses.items() if k.startswith("loss_") and not torch.isfinite(v).all()]
                 raise NonFiniteError(f"non-finite PPO loss {bad or ['gradient']}; try a smaller agent.lr")
             optimizer.step()
-            steps += 1
             diag = {k: float(v.detach().mean()) for k, v in losses.items()}
             diag["grad_norm"] = float(grad_norm)
-            aux_stats = aux.step() if aux is not None else None
+            diag["kl_k3"] = kl_k3(diag["kl_approx"], diag["mean_ratio"])
             if aux_stats is not None:
+                aux.step()
                 aux_rows.append(aux_stats)
                 diag.update({f"aux/{k}": v for k, v in aux_stats.items() if "loss" in k})
-            for k, v in diag.items():
-                sums[k] = sums.get(k, 0.0) + v
-    if not all(bool(torch.isfinite(p).all()) for p in params):
+            rows.append(diag)
+            epoch_kl.append(diag["kl_k3"])
+        if lr_schedule is not None:
+            lr_schedule.step(sum(epoch_kl) / len(epoch_kl))
+    trained = [*params, *(aux.loss.auxiliary_parameters() if aux is not None else [])]
+    if not all(bool(torch.isfinite(p).all()) for p in trained):
         raise NonFiniteError("a parameter became NaN or inf after the update; try a smaller agent.lr")
-    return {k: v / steps for k, v in sums.items()}, aux_rows
+    keys = dict.fromkeys(k for row in rows for k in row)
+    means = {k: sum(r[k] for r in rows if k in r) / sum(k in r for r in rows) for k in keys}
+    for k in MEDIAN_OF:
+        means[f"{k}_median"] = statistics.median(r[k] for r in rows)
+    means["lr"] = float(optimizer.param_groups[0]["lr"])
+    return means, aux_rows
 
 
 def rollout_stats(batch: TensorDictBase, ep_return: torch.Tensor, columns) -> dict[str, float]:

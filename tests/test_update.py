@@ -1,0 +1,184 @@
+"""The PPO update: entropy and log-std conventions, the paper's Eq. 2 with an SSL objective, the
+two optimisers, the auxiliary minibatches and the KL-adaptive learning rate."""
+
+import math
+
+import pytest
+import torch
+from helpers import compose_cfg
+from tensordict import TensorDict
+
+from roto_trl.data.memory import AuxMemory
+from roto_trl.modules.agent import Agent
+from roto_trl.objectives import TactileForwardDynamicsLoss
+from roto_trl.trainers.auxiliary import AuxiliaryUpdate
+from roto_trl.trainers.builders import make_lr_schedule, make_optimizer, make_ppo_loss
+from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3
+from roto_trl.trainers.ppo import minibatch_loss
+
+P, T, A = 6, 4, 3
+GAUSSIAN_ENTROPY_AT_UNIT_STD = 0.5 * math.log(2 * math.pi * math.e)  # 1.4189..., per dimension
+
+
+def agent_and_ppo_loss(entropy_coeff=0.0):
+    torch.manual_seed(0)
+    agent = Agent(("prop", "tactile"), P + T, A)
+    cfg = compose_cfg(["+exp=bounce_fd", f"agent.entropy_coeff={entropy_coeff}"])
+    return agent, make_ppo_loss(cfg, agent), cfg
+
+
+def ppo_minibatch(agent, size=16, seed=1):
+    """Observations, the policy's own actions and log-probs, and made-up advantages and targets."""
+    g = torch.Generator().manual_seed(seed)
+    tactile = (torch.rand(size, T, generator=g) > 0.5).float()
+    td = TensorDict({"prop": torch.randn(size, P, generator=g), "tactile": tactile}, [size])
+    with torch.no_grad():
+        agent.policy(td)
+    td["advantage"] = torch.randn(size, 1, generator=g)
+    td["value_target"] = torch.randn(size, 1, generator=g)
+    td["state_value"] = torch.randn(size, 1, generator=g)
+    return td.exclude("z")
+
+
+# ---------------------------------------------------------------------------- entropy and log-std
+
+
+def test_entropy_bonus_is_c_ent_times_the_mean_entropy_per_action_dimension():
+    agent, loss_fn, _ = agent_and_ppo_loss(entropy_coeff=0.1)
+    with torch.no_grad():
+        agent.policy_head.log_std.fill_(0.5)  # std e^0.5: entropy per dimension 1.4189 + 0.5
+    out = loss_fn(agent.encode(ppo_minibatch(agent)))
+    per_dimension = GAUSSIAN_ENTROPY_AT_UNIT_STD + 0.5
+    assert float(out["loss_entropy"].detach()) == pytest.approx(-0.1 * per_dimension, rel=1e-5)
+    assert float(out["entropy"]) == pytest.approx(A * per_dimension, rel=1e-5)  # TorchRL logs the sum
+
+
+def test_log_std_is_clamped_to_the_authors_range():
+    agent = Agent(("prop",), P, A)
+    z = torch.zeros(2, agent.encoder.latent_dim)
+    with torch.no_grad():
+        agent.policy_head.log_std.copy_(torch.tensor([5.0, -30.0, 1.0]))
+    _, scale = agent.policy_head(z)
+    assert scale[0].tolist() == pytest.approx([math.exp(2.0), math.exp(-20.0), math.exp(1.0)])
+
+
+# ---------------------------------------------------------------------------- Eq. 2 and the optimisers
+
+
+def with_tfd(agent, coeff):
+    """A TFD objective on ``agent``'s encoder, its memory holding one rollout of 2 worlds x 8 steps."""
+    torch.manual_seed(2)
+    loss = TactileForwardDynamicsLoss(agent.common, A, T)
+    memory = AuxMemory(1, ("prop", "tactile"), action_bounds=(-1.0, 1.0))
+    g = torch.Generator().manual_seed(3)
+    memory.add(
+        TensorDict(
+            {
+                "prop": torch.randn(2, 8, P, generator=g),
+                "tactile": (torch.rand(2, 8, T, generator=g) > 0.5).float(),
+                "action": torch.randn(2, 8, A, generator=g),
+                "next": TensorDict({"done": torch.zeros(2, 8, 1, dtype=torch.bool)}, [2, 8]),
+            },
+            [2, 8],
+        )
+    )
+    return AuxiliaryUpdate(loss, memory, lr=1e-3, coeff=coeff, seq_len=3)
+
+
+def encoder_grad(agent, loss_fn, aux=None, aux_data=None) -> torch.Tensor:
+    agent.zero_grad(set_to_none=True)
+    if aux is not None:
+        aux.zero_grad()
+    total, _, _ = minibatch_loss(agent, loss_fn, ppo_minibatch(agent), aux, aux_data)
+    total.backward()
+    return torch.cat([p.grad.flatten() for p in agent.encoder.parameters()])
+
+
+def test_eq2_c_aux_scales_only_the_auxiliary_part_of_the_encoders_gradient():
+    agent, loss_fn, _ = agent_and_ppo_loss()
+    ppo_only = encoder_grad(agent, loss_fn)
+    grads = {}
+    for coeff in (0.0, 0.5, 1.0):
+        aux = with_tfd(agent, coeff)
+        data = next(aux.memory.minibatches(1, 3, generator=torch.Generator().manual_seed(0)))
+        grads[coeff] = encoder_grad(agent, loss_fn, aux, data)
+    assert torch.equal(grads[0.0], ppo_only)  # c_aux = 0: exactly PPO's gradient
+    aux_part = grads[0.5] - ppo_only
+    assert float(aux_part.abs().max()) > 1e-6  # the auxiliary loss reaches the encoder
+    torch.testing.assert_close(grads[1.0] - ppo_only, 2 * aux_part, rtol=1e-4, atol=1e-7)
+
+
+def test_each_optimiser_holds_only_its_own_parameters_and_one_update_steps_both():
+    agent, loss_fn, cfg = agent_and_ppo_loss()
+    aux = with_tfd(agent, 1.0)
+    optimizer = make_optimizer(cfg, agent)
+    ppo_params = {id(p) for g in optimizer.param_groups for p in g["params"]}
+    aux_params = {id(p) for g in aux.optimizer.param_groups for p in g["params"]}
+    assert ppo_params == {id(p) for p in agent.parameters()}
+    assert not ppo_params & aux_params
+    own = (aux.loss.forward_model, aux.loss.projector, aux.loss.tactile_decoder)
+    assert aux_params == {id(p) for m in own for p in m.parameters()}
+
+    before = {name: p.detach().clone() for name, p in aux.loss.named_parameters()}
+    target_before = aux.loss.target_encoder_network_params.clone()
+    data = next(aux.epoch(1))
+    total, _, stats = minibatch_loss(agent, loss_fn, ppo_minibatch(agent), aux, data)
+    optimizer.zero_grad()
+    aux.zero_grad()
+    total.backward()
+    optimizer.step()
+    aux.step()
+    named = aux.loss.named_parameters()
+    changed = {name.split(".")[0] for name, p in named if not torch.equal(p, before[name])}
+    assert changed == {"encoder_network_params", "forward_model", "projector", "tactile_decoder"}
+    assert stats["aux_loss"] == pytest.approx(stats["loss_dynamics"] + stats["loss_tactile"], rel=1e-5)
+    moved = aux.loss.target_encoder_network_params["module", "net", "0", "weight"]
+    assert not torch.equal(moved, target_before["module", "net", "0", "weight"])  # the EMA followed
+
+
+# ---------------------------------------------------------------------------- the KL-adaptive rate
+
+
+def test_kl_k3_by_hand():
+    # ratios 0.5 and 2: mean r = 1.25, mean(-log r) = 0; (0.5 - 1 + ln 2 + 2 - 1 - ln 2) / 2 = 0.25
+    assert kl_k3(0.0, 1.25) == pytest.approx(0.25)
+
+
+def test_kl_adaptive_rule_by_hand():
+    # target 0.008: above 0.016 divide by 1.5, below 0.004 multiply by 1.5, between keep
+    assert kl_adaptive_lr(3e-4, 0.02, 0.008) == pytest.approx(2e-4)
+    assert kl_adaptive_lr(3e-4, 0.001, 0.008) == pytest.approx(4.5e-4)
+    assert kl_adaptive_lr(3e-4, 0.016, 0.008) == 3e-4  # the bounds themselves keep the rate
+    assert kl_adaptive_lr(3e-4, 0.004, 0.008) == 3e-4
+    assert kl_adaptive_lr(1.2e-6, 1.0, 0.008) == 1e-6  # clamped to [1e-6, 1e-2]
+    assert kl_adaptive_lr(8e-3, 0.0, 0.008) == 1e-2
+
+
+def test_lr_schedule_config():
+    agent = Agent(("prop",), P, A)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=3e-4)
+    assert make_lr_schedule(compose_cfg(["+exp=bounce_ppo"]), optimizer) is None  # fixed by default
+    cfg = compose_cfg(["+exp=bounce_ppo", "agent.lr_schedule=kl_adaptive"])
+    schedule = make_lr_schedule(cfg, optimizer)
+    assert schedule.step(0.05) == pytest.approx(2e-4)  # KL 0.05 > 2 x 0.008
+    assert optimizer.param_groups[0]["lr"] == pytest.approx(2e-4)
+    with pytest.raises(ValueError, match=r"agent\.lr_schedule must be one of"):
+        make_lr_schedule(compose_cfg(["+exp=bounce_ppo", "agent.lr_schedule=cosine"]), optimizer)
+
+
+def test_the_forward_model_learns_from_the_action_the_env_applied():
+    from roto_trl.trainers.builders import agent_for_env, make_aux_update, make_collector, make_train_env
+
+    cfg = compose_cfg(["+exp=bounce_fd", "env.num_envs=2", "agent.rollout_len=3"])
+    env = make_train_env(cfg)
+    agent = agent_for_env(cfg, env)
+    with torch.no_grad():
+        agent.policy_head.log_std.fill_(1.0)  # std e: most samples fall outside [-1, 1]
+    collector = make_collector(cfg, env, agent)  # what training collects
+    rollout = next(iter(collector))
+    collector.shutdown()
+    aux = make_aux_update(cfg, agent, env)
+    aux.memory.add(rollout)
+    sampled = rollout["action"]
+    assert bool((sampled.abs() > 1).any())
+    assert torch.equal(aux.memory.stored()["action"][0], sampled.clamp(-1.0, 1.0))  # the env's clip
