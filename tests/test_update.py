@@ -136,6 +136,41 @@ def test_each_optimiser_holds_only_its_own_parameters_and_one_update_steps_both(
     assert not torch.equal(moved, target_before["module", "net", "0", "weight"])  # the EMA followed
 
 
+# ---------------------------------------------------------------------------- a separate critic
+
+
+def test_a_separate_critic_keeps_the_value_loss_out_of_the_policy_encoder():
+    torch.manual_seed(0)
+    agent = Agent(("prop", "tactile"), P + T, A, shared_encoder=False)
+    cfg = compose_cfg(["+exp=bounce_fd", "agent.shared_encoder=false"])
+    loss_fn = make_ppo_loss(cfg, agent)
+    minibatch = agent.encode(ppo_minibatch(agent))
+    agent.zero_grad(set_to_none=True)
+    loss_fn(minibatch)["loss_critic"].backward()
+    assert all(p.grad is None for p in agent.encoder.parameters())  # the policy's encoder
+    assert all(p.grad is not None for p in agent.value_encoder.parameters())
+    # the value used for advantages is the critic's own: the policy's z is not read
+    minibatch["z"] = torch.full_like(minibatch["z"], float("nan"))
+    with torch.no_grad():
+        value = agent.normalised_value(minibatch)
+        direct = agent.value_head(agent.value_encoder(minibatch["prop"], minibatch["tactile"]))
+    assert torch.equal(value, direct)
+    # the optimiser steps both encoders; the SSL objectives train the policy's (``common``)
+    ids = {id(p) for g in make_optimizer(cfg, agent).param_groups for p in g["params"]}
+    assert {id(p) for p in agent.value_encoder.parameters()} <= ids
+    assert agent.common.module is agent.encoder
+
+
+def test_the_shared_agent_reads_the_policys_latent_for_its_value():
+    torch.manual_seed(0)
+    agent = Agent(("prop",), P, A)
+    td = ppo_minibatch(agent)
+    agent.encode(td)
+    with torch.no_grad():
+        assert torch.equal(agent.normalised_value(td), agent.value_head(td["z"]))
+    assert not hasattr(agent, "value_encoder")
+
+
 # ---------------------------------------------------------------------------- the KL-adaptive rate
 
 

@@ -13,7 +13,7 @@ the encoder runs once per minibatch and receives every loss's gradient through t
 from __future__ import annotations
 
 import torch
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.modules import ActorValueOperator, IndependentNormal, ProbabilisticActor, ValueOperator
 
@@ -23,6 +23,17 @@ from roto_trl.modules.normalization import ValueNormalizer
 LATENT_KEY = "z"
 
 
+class Critic(nn.Module):
+    """Observation parts -> normalised state value ``[*B, 1]``: an encoder and a value head."""
+
+    def __init__(self, encoder: Encoder, head: ValueHead) -> None:
+        super().__init__()
+        self.encoder, self.head = encoder, head
+
+    def forward(self, *parts: torch.Tensor) -> torch.Tensor:
+        return self.head(self.encoder(*parts))
+
+
 class Agent(nn.Module):
     """Everything a checkpoint holds of the agent: networks and the value normaliser.
 
@@ -30,9 +41,14 @@ class Agent(nn.Module):
         obs_keys: observation entries the encoder reads, concatenated in this order.
         obs_dim: their total size (e.g. ``k * (P + T)``).
         n_actions: action size.
+        shared_encoder: True (the paper): one encoder feeds the policy and the value head.
+            False: the critic has its own encoder of the same size, trained by the value loss
+            only; the policy's encoder is the one the SSL objectives train (``common``).
     """
 
-    def __init__(self, obs_keys: tuple[str, ...], obs_dim: int, n_actions: int) -> None:
+    def __init__(
+        self, obs_keys: tuple[str, ...], obs_dim: int, n_actions: int, shared_encoder: bool = True
+    ) -> None:
         super().__init__()
         self.obs_keys = tuple(obs_keys)
         self.n_actions = int(n_actions)
@@ -48,15 +64,32 @@ class Agent(nn.Module):
             distribution_class=IndependentNormal,
             return_log_prob=True,
         )
-        self.critic_head = ValueOperator(self.value_head, in_keys=[LATENT_KEY])
-        self.actor_critic = ActorValueOperator(self.common, self.actor_head, self.critic_head)
-        self.policy = self.actor_critic.get_policy_operator()
-        self.value = self.actor_critic.get_value_operator()
+        self.shared_encoder = bool(shared_encoder)
+        if self.shared_encoder:  # the paper's agent: the value head reads the policy's z
+            self.critic_head = ValueOperator(self.value_head, in_keys=[LATENT_KEY])
+            self.actor_critic = ActorValueOperator(self.common, self.actor_head, self.critic_head)
+            self.policy = self.actor_critic.get_policy_operator()
+            self.value = self.actor_critic.get_value_operator()
+        else:  # the critic has an encoder of its own, of the same size; SSL trains the policy's
+            self.value_encoder = Encoder(obs_dim)
+            self.critic_head = ValueOperator(
+                Critic(self.value_encoder, self.value_head), in_keys=list(self.obs_keys)
+            )
+            self.policy = TensorDictSequential(self.common, self.actor_head)
+            self.value = self.critic_head
 
     def encode(self, td):
         """Write the latent ``z`` ``[*B, 256]`` of ``td``'s observations into ``td`` (with gradients)."""
         td.set(LATENT_KEY, self.encoder(*(td.get(k) for k in self.obs_keys)))
         return td
+
+    def normalised_value(self, td) -> torch.Tensor:
+        """The value head's output ``[*B, 1]`` for ``td``, which holds the ``z`` the policy wrote
+        while acting: the shared encoder's latent is reused, a separate critic encodes the
+        observations itself."""
+        if self.shared_encoder:
+            return self.value_head(td.get(LATENT_KEY))
+        return self.value_head(self.value_encoder(*(td.get(k) for k in self.obs_keys)))
 
     @torch.no_grad()
     def raw_value(self, td) -> torch.Tensor:

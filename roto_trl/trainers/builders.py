@@ -79,7 +79,8 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
     if missing:
         raise ValueError(f"env.obs_keys {missing} are not observations of {cfg.env.task}; use prop/tactile")
     obs_dim = sum(int(spec[k].shape[-1]) for k in keys)
-    return Agent(keys, obs_dim, env.base_env.n_actions).to(cfg.device)
+    shared = bool(cfg.agent.get("shared_encoder", True))  # runs from before the option: shared
+    return Agent(keys, obs_dim, env.base_env.n_actions, shared_encoder=shared).to(cfg.device)
 
 
 def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
