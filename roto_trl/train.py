@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 from tqdm import tqdm
 
 from roto_trl.analysis.checkpoint_eval import evaluate_run
@@ -50,6 +50,7 @@ from roto_trl.trainers.errors import NonFiniteError
 from roto_trl.trainers.evaluation import evaluate
 from roto_trl.trainers.loggers import BACKENDS, MetricLogger, read_csv
 from roto_trl.trainers.ppo import ppo_update, rollout_stats, store_rollout
+from roto_trl.trainers.threads import job_threads
 from roto_trl.utils.resources import resource_dir
 
 EXIT_NON_FINITE = 3  # exit status of a run stopped by a NaN or inf
@@ -108,6 +109,29 @@ def prepare_run(cfg: DictConfig) -> tuple[DictConfig, Path, dict | None]:
     resolved["run_dir"], resolved["resume"] = str(run_dir), None
     OmegaConf.save(OmegaConf.create(resolved), run_dir / "config.yaml")
     return OmegaConf.create(resolved), run_dir, None
+
+
+def place_multirun_job(cfg: DictConfig, hydra_cfg: DictConfig) -> None:
+    """Give a multirun job its run directory and its share of the cores (edits ``cfg``).
+
+    Without ``run_dir`` the job runs in its Hydra job directory (``hydra.sweep.dir`` /
+    ``hydra.sweep.subdir``), the same on every start of the job; if that directory already holds a
+    checkpoint, the job continues it: this is how a job requeued after the scheduler's time limit
+    (submitit's requeue) resumes. Thread shares: ``roto_trl.trainers.threads.job_threads``.
+    """
+    share = job_threads(hydra_cfg.launcher, len(os.sched_getaffinity(0)))
+    with open_dict(cfg):
+        if share is not None:
+            cfg.torch_threads = cfg.torch_threads or share
+            if "num_threads" not in cfg.env.overrides:
+                cfg.env.overrides.num_threads = share
+        if cfg.resume or cfg.run_dir:
+            return
+        job_dir = Path(str(hydra_cfg.runtime.output_dir))
+        if (job_dir / "checkpoints" / LATEST).exists():
+            cfg.resume = str(job_dir)
+        else:
+            cfg.run_dir = str(job_dir)
 
 
 def seed_everything(seed: int) -> None:
@@ -319,6 +343,8 @@ def main(cfg: DictConfig) -> float:
     sweeper goes on with the next trial, where ``sys.exit`` would end the whole sweep.
     """
     in_sweep = HydraConfig.get().mode == RunMode.MULTIRUN
+    if in_sweep:
+        place_multirun_job(cfg, HydraConfig.get())
     try:
         summary = train(cfg)
     except NonFiniteError as err:
