@@ -36,9 +36,11 @@ EVALS = {
 
 
 def write_runs(root: Path) -> None:
+    root.mkdir(parents=True)
+    (root / "multirun.yaml").write_text("hydra: {}\n")  # what Hydra leaves in a sweep directory: no run
     for (exp, seed), columns in EVALS.items():
         run = root / f"{exp}-s{seed}"
-        run.mkdir(parents=True)
+        run.mkdir()
         (run / "config.yaml").write_text(f"exp_name: {exp}\nseed: {seed}\nenv:\n  task: bounce\n")
         with (run / "eval.csv").open("w", newline="") as handle:
             writer = csv.writer(handle)
