@@ -11,9 +11,11 @@ from pathlib import Path
 
 import pytest
 import yaml
-from helpers import TINY
+from helpers import TINY, compose_cfg
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
+from roto_trl.train import place_multirun_job
 from roto_trl.trainers.threads import job_threads
 from roto_trl.utils.resources import resource_dir
 
@@ -52,6 +54,25 @@ def test_slurm_launcher_config_composes():
     assert launcher._target_ == SLURM["_target_"]
     assert (launcher.cpus_per_task, launcher.timeout_min, launcher.max_num_timeout) == (8, 1440, 20)
     assert job_threads(launcher, 64) == 8
+
+
+def test_a_multirun_job_runs_in_its_job_directory_and_continues_a_checkpoint_there(tmp_path):
+    hydra_cfg = OmegaConf.create(
+        {"launcher": {**JOBLIB, "n_jobs": 64}, "runtime": {"output_dir": str(tmp_path)}}
+    )
+    cfg = compose_cfg(["+exp=find_ppo"])
+    place_multirun_job(cfg, hydra_cfg)
+    assert (cfg.run_dir, cfg.resume) == (str(tmp_path), None)  # a first start: a new run there
+    assert cfg.torch_threads == 1 and cfg.env.overrides.num_threads == 1  # one thread each
+    (tmp_path / "checkpoints").mkdir()
+    (tmp_path / "checkpoints" / "latest.pt").write_bytes(b"")
+    cfg = compose_cfg(["+exp=find_ppo", "torch_threads=3", "+env.overrides.num_threads=2"])
+    place_multirun_job(cfg, hydra_cfg)
+    assert (cfg.run_dir, cfg.resume) == (None, str(tmp_path))  # requeued: continue the run
+    assert cfg.torch_threads == 3 and cfg.env.overrides.num_threads == 2  # given values win
+    cfg = compose_cfg(["+exp=find_ppo", f"run_dir={tmp_path / 'mine'}"])
+    place_multirun_job(cfg, hydra_cfg)
+    assert (cfg.run_dir, cfg.resume) == (str(tmp_path / "mine"), None)  # a given run_dir wins
 
 
 def multirun(sweep_dir: Path, *args: str, timeout: float = 400) -> subprocess.CompletedProcess:
