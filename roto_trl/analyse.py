@@ -5,6 +5,7 @@
     python roto_trl/analyse.py latent runs/compare/bounce_fd-s0       # 2-D PCA of z over one episode
     python roto_trl/analyse.py tactile runs/bounce_tfd/<run>          # predicted vs actual contacts
     python roto_trl/analyse.py aux-memory 'runs/baoding_fd*/*'        # auxiliary loss per minibatch
+    python roto_trl/analyse.py table 'runs/multirun/*/*' --at 2.5M,5M --reference   # the results table
 
 Runs are run directories of ``train.py`` or quoted globs of them. Each command writes PNGs and a
 CSV of the numbers behind them to ``--out`` (default ``runs/analysis/<command>``) and prints
@@ -36,6 +37,13 @@ from roto_trl.analysis.runs import (
     one_task,
     physical_metrics,
     run_csv,
+)
+from roto_trl.analysis.table import (
+    load_reference,
+    parse_frames,
+    results_table,
+    table_markdown,
+    write_table_csv,
 )
 from roto_trl.trainers.builders import eval_seed, make_aux_update, make_eval_env
 from roto_trl.trainers.loggers import read_csv
@@ -280,12 +288,26 @@ def cmd_aux_memory(runs: list[Run], out: Path, args) -> list[Path]:
     return [save_figure(fig, out / "aux_memory.png"), write_csv(out / "aux_memory.csv", header, rows)]
 
 
+# ---------------------------------------------------------------------------- the results table
+
+
+def cmd_table(runs: list[Run], out: Path, args) -> list[Path]:
+    """The results table: physical metrics and return per experiment, mean and max over seeds."""
+    at = parse_frames(args.at) if args.at else []
+    rows = results_table(runs, at, load_reference() if args.reference else None)
+    markdown = table_markdown(rows, args.reference)
+    print(markdown)
+    (out / "table.md").write_text(markdown)
+    return [out / "table.md", write_table_csv(rows, out / "table.csv", args.reference)]
+
+
 COMMANDS = {
     "curves": cmd_curves,
     "mi": cmd_mi,
     "latent": cmd_latent,
     "tactile": cmd_tactile,
     "aux-memory": cmd_aux_memory,
+    "table": cmd_table,
 }
 
 
@@ -331,6 +353,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             p.add_argument("--seed", type=int, default=0, help="seed of the sample draw")
         if name == "tactile":
             p.add_argument("--steps", type=positive_int, default=120, help="steps shown in the contact map")
+        if name == "table":
+            p.add_argument("--at", default=None, help="also at these frame counts, e.g. 2.5M,5M,10M")
+            p.add_argument("--reference", action="store_true", help="the authors' numbers beside ours")
     return parser.parse_args(argv)
 
 

@@ -30,7 +30,7 @@ import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 from tqdm import tqdm
 
 from roto_trl.analysis.checkpoint_eval import evaluate_run
@@ -57,6 +57,7 @@ from roto_trl.trainers.loggers import BACKENDS, MetricLogger, read_csv
 from roto_trl.trainers.ppo import ppo_update, rollout_stats, store_rollout
 from roto_trl.trainers.run_dir import finished_reason, resume_config, rewind
 from roto_trl.trainers.run_lock import RunLock
+from roto_trl.trainers.threads import job_threads
 from roto_trl.utils.paths import writable_dir
 from roto_trl.utils.resources import resource_dir
 
@@ -148,6 +149,40 @@ def prepare_run(
     resolved["run_dir"], resolved["resume"] = str(run_dir), None
     OmegaConf.save(OmegaConf.create(resolved), run_dir / "config.yaml")
     return OmegaConf.create(resolved), run_dir, None, lock
+
+
+def place_multirun_job(cfg: DictConfig, hydra_cfg: DictConfig) -> bool:
+    """Give a multirun job its run directory and its share of the cores (edits ``cfg``).
+
+    The job's directory: its Hydra job directory (``hydra.sweep.dir`` / ``hydra.sweep.subdir``)
+    without ``run_dir``; with one ``run_dir=X`` for several jobs, ``X/<job number>`` (our Optuna
+    sweeper gives each trial its own ``run_dir``, kept as it is). The same on every start of the
+    job: if it already holds a checkpoint, the job continues it, which is how a job requeued after
+    the scheduler's time limit (submitit's requeue) resumes. Thread shares:
+    ``roto_trl.trainers.threads.job_threads``.
+
+    Returns:
+        True when the job continues its directory's checkpoint (``cfg.resume`` set).
+    """
+    share = job_threads(hydra_cfg.launcher, len(os.sched_getaffinity(0)))
+    with open_dict(cfg):
+        if share is not None:
+            cfg.torch_threads = cfg.torch_threads or share
+            if "num_threads" not in cfg.env.overrides:
+                cfg.env.overrides.num_threads = share
+        if cfg.resume:
+            return False
+        if not cfg.run_dir:
+            job_dir = Path(str(hydra_cfg.runtime.output_dir))
+        elif str(hydra_cfg.sweeper.get("_target_", "")).endswith("OptunaSweeper"):
+            job_dir = Path(str(cfg.run_dir))
+        else:
+            job_dir = Path(str(cfg.run_dir)) / str(hydra_cfg.job.num)
+        if (job_dir / "checkpoints" / LATEST).exists():
+            cfg.resume = str(job_dir)
+            return True
+        cfg.run_dir = str(job_dir)
+        return False
 
 
 def seed_everything(seed: int) -> None:
@@ -407,10 +442,11 @@ def main(cfg: DictConfig) -> float:
     """
     hydra_cfg = HydraConfig.get()
     in_sweep = hydra_cfg.mode == RunMode.MULTIRUN
-    if in_sweep and cfg.run_dir and not str(hydra_cfg.sweeper.get("_target_", "")).endswith("OptunaSweeper"):
-        cfg.run_dir = str(Path(str(cfg.run_dir)) / str(hydra_cfg.job.num))
+    overrides = list(hydra_cfg.overrides.task)
+    if in_sweep and place_multirun_job(cfg, hydra_cfg):
+        overrides = []  # a requeued job: the command of its first start, whose config is saved
     try:
-        summary = train(cfg, list(hydra_cfg.overrides.task))
+        summary = train(cfg, overrides)
     except TrainingInterrupted as err:
         if in_sweep:
             raise

@@ -215,3 +215,27 @@ def test_analyse_rejects_bad_inputs_with_one_line(runs, tmp_path):
         analyse.main(["mi", str(runs["ppo0"]), str(runs["find"]), "--out", str(tmp_path)])
     with pytest.raises(SystemExit, match="needs a TR or TFD run"):
         analyse.main(["tactile", str(runs["ppo0"]), "--out", str(tmp_path)])
+
+
+def test_training_evaluations_log_the_tables_numbers(runs, tmp_path):
+    """Every evaluation during training logs the physical metrics the results table reads."""
+    find = table(runs["find"] / "eval.csv")
+    assert {"reached_3cm", "reached_1cm", "reached_0.05cm", "find_time_1cm"} <= set(find[0])
+    assert all(0.0 <= float(row["reached_1cm"]) <= 1.0 for row in find)
+    last = [table(runs[name] / "eval.csv")[-1] for name in ("tfd0", "tfd1")]
+    analyse.main(["table", str(runs["tfd0"]), str(runs["tfd1"]), str(runs["find"]), "--out", str(tmp_path)])
+    rows = {(r["exp_name"], r["metric"]): r for r in table(tmp_path / "table.csv")}
+    bounces = rows[("bounce_tfd", "bounces_per_10s")]
+    per_run = [float(row["bounces_per_10s"]) for row in last]
+    assert int(bounces["seeds"]) == 2 and float(bounces["frames"]) == 512
+    assert float(bounces["mean"]) == pytest.approx(np.mean(per_run))
+    assert float(bounces["max"]) == pytest.approx(max(per_run))
+    assert {m for e, m in rows if e == "find_ppo"} == {
+        "return",
+        "find_time_3cm_s",
+        "reached_3cm",
+        "find_time_1cm_s",
+        "reached_1cm",
+        "find_time_0.05cm_s",
+        "reached_0.05cm",
+    }

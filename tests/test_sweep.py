@@ -300,3 +300,24 @@ def test_bad_sweep_setups_get_one_line(tmp_path):
     (tmp_path / "study.json").write_text("{bad")
     with pytest.raises(SystemExit, match=f"{tmp_path}/study.json is not valid JSON"):
         sweep_main(["summary", str(tmp_path)])
+
+
+def test_sweep_runs_two_trials_at_once_through_joblib(tmp_path):
+    done = sweep(
+        f"hydra.sweep.dir={tmp_path}",
+        "hydra.sweeper.n_trials=3",
+        "hydra.sweeper.n_jobs=2",
+        "hydra/launcher=joblib",
+        "hydra.launcher.n_jobs=2",
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    trials = load_study(tmp_path).get_trials()
+    assert [t.state for t in trials] == [TrialState.COMPLETE] * 3
+    runs = [tmp_path / "trials" / str(n) for n in range(3)]
+    for trial, run_dir in zip(trials, runs, strict=True):
+        assert trial.value == pytest.approx(run_objective(run_dir))
+    # trials 0 and 1 were one batch: each started (config.yaml) before the other ended (summary.json)
+    start = [(run / "config.yaml").stat().st_mtime for run in runs]
+    end = [(run / "summary.json").stat().st_mtime for run in runs]
+    assert start[0] < end[1] and start[1] < end[0]
+    assert start[2] > max(end[:2])  # the third trial waited for a free slot: the target is 3

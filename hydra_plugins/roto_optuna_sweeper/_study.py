@@ -1,12 +1,17 @@
 """The study loop behind ``OptunaSweeper``: search space, trials, failures, resumption.
 
-* **Trials.** One at a time per worker: Optuna's TPE proposes values, the task runs as one Hydra
-  job with ``run_dir=<sweep dir>/trials/<number>`` (that directory also gets ``trial.json``: study,
-  storage without password, trial number; the trial gets user attributes ``run_dir`` and
-  ``worker`` = ``host:pid``), and its return value is the trial's objective (maximised).
+* **Trials.** ``n_jobs`` at a time per worker: Optuna's TPE proposes values (with its constant
+  liar when ``n_jobs > 1``, so that trials running at once are not proposed alike), each trial
+  runs as one Hydra job with ``run_dir=<sweep dir>/trials/<number>`` (that directory also gets
+  ``trial.json``: study, storage without password, trial number; the trial gets user attributes
+  ``run_dir`` and ``worker`` = ``host:pid``), the batch goes to the configured launcher in one
+  ``launch`` (``hydra/launcher=joblib`` runs it in parallel processes, ``submitit_slurm`` as SLURM
+  jobs; Hydra's basic launcher one after another), and each job's return value is its trial's
+  objective (maximised).
 * **The target.** The sweep ends once the study holds ``n_trials`` COMPLETE trials, counted over
-  every worker and every earlier run of the same command. Each worker checks before it starts a
-  trial, so k workers running at once may end with up to k - 1 more.
+  every worker and every earlier run of the same command. Each worker checks before it launches a
+  batch and launches no more than the target lacks, so k workers running at once may end with up
+  to (k - 1) x ``n_jobs`` more.
 * **Failures.** A trial whose run raises (a NaN/inf stop, a crash, an impossible combination of
   values) or returns no finite number is FAIL with user attribute ``fail_reason`` (the run's
   traceback in ``<run dir>/error.txt``) and does not count; the sweep goes on. ``max_failures``
@@ -32,8 +37,11 @@ import math
 import os
 import re
 import socket
+import threading
 import traceback
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -51,10 +59,6 @@ from roto_trl.sweeps.storage import TRIAL_FILE, open_storage, record_study, reda
 TAGS = {"log", "int"}  # tag(log, ...): log scale; tag(int, interval(...)): integers
 RESERVED = ("run_dir", "resume")  # set by the sweeper for each trial
 _PLAIN = re.compile(r"[A-Za-z_/][\w/.-]*")  # strings Hydra reads back unquoted as themselves
-
-
-class TrialFailed(Exception):
-    """A trial's run failed; the message is its ``fail_reason``."""
 
 
 class SweepStopped(RuntimeError):
@@ -144,6 +148,32 @@ def _alive(pid: int) -> bool:
     return True
 
 
+@contextmanager
+def heartbeats(storage: optuna.storages.BaseStorage, trial_ids: list[int]) -> Iterator[None]:
+    """Record a heartbeat of each of ``trial_ids`` every heartbeat interval while the block runs
+    (RDB storages with one; what ``Study.optimize`` does for its single trial)."""
+    interval = storage.get_heartbeat_interval() if isinstance(storage, optuna.storages.RDBStorage) else None
+    if not interval:
+        yield
+        return
+    stop = threading.Event()
+
+    def beat() -> None:
+        while True:
+            for trial_id in trial_ids:
+                storage.record_heartbeat(trial_id)
+            if stop.wait(interval):
+                return
+
+    thread = threading.Thread(target=beat, name="trial-heartbeats", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
 def _failure(job: JobReturn, run_dir: Path) -> str | None:
     """Why ``job`` gives no objective (its traceback to ``run_dir/error.txt``), or None."""
     try:
@@ -169,7 +199,7 @@ class StudyLoop:
 
     def __init__(self, sweeper: Sweeper, arguments: list[str]) -> None:
         conf, config = sweeper.conf, sweeper.config
-        for key in ("n_trials", "max_failures", "heartbeat_interval", "grace_period"):
+        for key in ("n_trials", "n_jobs", "max_failures", "heartbeat_interval", "grace_period"):
             if getattr(conf, key) < 1:
                 raise ValueError(f"hydra.sweeper.{key} must be >= 1, got {getattr(conf, key)}")
         parser = OverridesParser.create(config_loader=sweeper.hydra_context.config_loader)
@@ -233,13 +263,10 @@ class StudyLoop:
                 )
             # a set seed moves with the study's size: a resumed sweep does not replay its proposals
             seed = None if conf.seed is None else conf.seed + self.count()
-            self.study.sampler = optuna.samplers.TPESampler(n_startup_trials=conf.n_startup_trials, seed=seed)
-            verbosity = optuna.logging.get_verbosity()
-            optuna.logging.set_verbosity(optuna.logging.ERROR)  # a failed trial: our line, not its traceback
-            try:
-                self.study.optimize(self.objective, n_trials=1, catch=(TrialFailed,))
-            finally:
-                optuna.logging.set_verbosity(verbosity)
+            self.study.sampler = optuna.samplers.TPESampler(
+                n_startup_trials=conf.n_startup_trials, seed=seed, constant_liar=conf.n_jobs > 1
+            )
+            self.run_batch(min(conf.n_jobs, conf.n_trials - self.count(TrialState.COMPLETE)))
         summary = write_summary(self.study, self.sweep_dir)
         best = self.study.best_trial
         print(
@@ -249,8 +276,27 @@ class StudyLoop:
             flush=True,
         )
 
-    def objective(self, trial: Trial) -> float:
-        """Run one trial's job; its objective, or ``TrialFailed`` with the reason."""
+    def run_batch(self, size: int) -> None:
+        """Ask for ``size`` trials, run them as one launch of the configured launcher, tell results."""
+        with warnings.catch_warnings():  # heartbeats are recorded by heartbeats(), not optimize()
+            warnings.filterwarnings("ignore", "Heartbeat of storage is supposed to be used with")
+            trials = [self.study.ask() for _ in range(size)]
+        overrides = [self.trial_overrides(trial) for trial in trials]
+        ids = [self.storage.get_trial_id_from_study_id_trial_number(self.study_id, t.number) for t in trials]
+        try:
+            with heartbeats(self.storage, ids):
+                jobs = self.sweeper.launcher.launch(overrides, initial_job_idx=trials[0].number)
+        except BaseException as err:  # interrupted, or the launcher itself broke: no trial ran to its end
+            reason = "interrupted" if isinstance(err, KeyboardInterrupt) else f"{type(err).__name__}: {err}"
+            for trial in trials:
+                trial.set_user_attr("fail_reason", reason[:500])
+                self.study.tell(trial, state=TrialState.FAIL)
+            raise
+        for trial, job in zip(trials, jobs, strict=True):
+            self.tell(trial, job)
+
+    def trial_overrides(self, trial: Trial) -> list[str]:
+        """Propose one trial's values; its run directory (with ``trial.json``) and Hydra overrides."""
         values = {name: suggest(trial, name, dist) for name, (_, dist) in self.space.items()}
         run_dir = self.sweep_dir / "trials" / str(trial.number)
         trial.set_user_attr("run_dir", str(run_dir))
@@ -262,24 +308,23 @@ class StudyLoop:
             "trial_number": trial.number,
         }
         (run_dir / TRIAL_FILE).write_text(json.dumps({**link, "params": values}, indent=2) + "\n")
-        overrides = [
+        return [
             *self.fixed,
             *(f"{self.space[name][0]}={render(value)}" for name, value in values.items()),
             f"run_dir={render(str(run_dir))}",
         ]
-        try:
-            [job] = self.sweeper.launcher.launch([overrides], initial_job_idx=trial.number)
-        except KeyboardInterrupt:
-            trial.set_user_attr("fail_reason", "interrupted")
-            raise
-        reason = _failure(job, run_dir)
-        if reason is not None:
-            trial.set_user_attr("fail_reason", reason)
-            self.failures, self.last_failure = self.failures + 1, reason
-            print(f"sweep: trial {trial.number} failed: {reason}", flush=True)
-            raise TrialFailed(reason)
-        self.failures = 0
-        return float(job.return_value)
+
+    def tell(self, trial: Trial, job: JobReturn) -> None:
+        """The trial is COMPLETE with its job's objective, or FAIL with the reason."""
+        reason = _failure(job, Path(trial.user_attrs["run_dir"]))
+        if reason is None:
+            self.failures = 0
+            self.study.tell(trial, float(job.return_value))
+            return
+        trial.set_user_attr("fail_reason", reason)
+        self.failures, self.last_failure = self.failures + 1, reason
+        print(f"sweep: trial {trial.number} failed: {reason}", flush=True)
+        self.study.tell(trial, state=TrialState.FAIL)
 
     def fail_dead_trials(self) -> None:
         """Mark FAIL the RUNNING trials of dead workers (the module's docstring says which)."""

@@ -13,7 +13,8 @@ from hydra_plugins.roto_optuna_sweeper.config import OptunaSweeperConf
 
 
 class OptunaSweeper(Sweeper):
-    """Runs trials of an Optuna study (TPE, maximising the task's return value) one at a time.
+    """Runs trials of an Optuna study (TPE, maximising the task's return value), ``n_jobs`` at a
+    time through the configured launcher.
 
     Args (``hydra.sweeper.<key>``, defaults in ``config.OptunaSweeperConf``):
         params: search space, ``key: sweep`` in Hydra's syntax: ``choice(a, b)``, ``a,b``,
@@ -22,6 +23,9 @@ class OptunaSweeper(Sweeper):
             command line join the space; plain ``key=value`` arguments are passed to every trial.
         n_trials: the study ends when it holds this many COMPLETE trials, counted over every
             worker and earlier (resumed) sweeps; failed trials do not count.
+        n_jobs: trials launched at once, as one batch of the configured launcher
+            (``hydra/launcher=joblib hydra.launcher.n_jobs=<n>``: in parallel; Hydra's basic
+            launcher runs a batch one trial after another).
         n_startup_trials, seed: TPE's random start-up trials and its seed (null: fresh entropy;
             a set seed is offset by the study's trial count, so a resumed sweep does not replay
             its first proposals).

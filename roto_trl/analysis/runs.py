@@ -35,7 +35,8 @@ def find_runs(patterns: list[str]) -> list[Run]:
     """
     paths: list[Path] = []
     for pattern in patterns:
-        matched = sorted(Path(p) for p in glob.glob(pattern)) or (
+        # a glob matches run directories only (a sweep directory also holds multirun.yaml)
+        matched = sorted(Path(p) for p in glob.glob(pattern) if Path(p).is_dir()) or (
             [Path(pattern)] if Path(pattern).exists() else []
         )
         if not matched:

@@ -94,11 +94,15 @@ def run_episodes(
 
 
 def evaluate(env: TransformedEnv, agent: Agent, seed: int) -> dict[str, float]:
-    """:func:`run_episodes`, summarised: return mean and std, and each episode metric's mean."""
+    """:func:`run_episodes`, summarised: return mean and std, each episode metric's mean and the
+    task's physical metrics (``physical_metrics``: Find's ``reached_<tol>``, ``bounces_per_10s``,
+    ``rotations_per_10s``), so that ``eval.csv`` holds the results table's numbers at every
+    evaluation (``analyse.py table``)."""
     episodes = run_episodes(env, agent, seed)
     result = {
         "return_mean": float(episodes.returns.mean()),
         "return_std": float(episodes.returns.std(correction=0)),
     }
     result.update({name: float(v.mean()) for name, v in episodes.final.items()})
+    result.update(env.base_env.physical_metrics(episodes.final))
     return result

@@ -17,10 +17,10 @@ def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage) -> None:
     """Write ``advantage`` and normalised ``value_target`` / ``state_value`` into ``batch`` [N, R].
 
     Values of the rollout's observations come from the latent ``z`` the policy wrote while
-    acting (same parameters, no second encoder pass; a separate critic encodes them); the next observation's value is the next
-    step's, except after the last step and at episode ends, where the episode's final
-    observation is encoded. GAE runs on the return scale; the value targets are then normalised
-    with the running statistics, updated with this rollout's returns.
+    acting (same parameters, no second encoder pass; a separate critic encodes them); the next
+    observation's value is the next step's, except after the last step and at episode ends,
+    where the episode's final observation is encoded. GAE runs on the return scale; the value
+    targets are then normalised with the running statistics, updated with this rollout's returns.
     """
     norm = agent.value_norm
     value = norm.denormalize(agent.normalised_value(batch))  # [N, R, 1]

@@ -1,0 +1,144 @@
+"""``analyse.py table``: each experiment's metrics over seeds at the final evaluation and at chosen
+frame counts, and the authors' numbers beside them; checked on hand-written runs."""
+
+import csv
+from pathlib import Path
+
+import pytest
+
+from roto_trl import analyse
+from roto_trl.analysis.table import frames_label, load_reference, parse_frames, table_metric
+
+M = 1_000_000
+# exp_name, seed -> eval.csv columns (bounces is a per-episode mean the table leaves out)
+EVALS = {
+    ("bounce_ppo", 0): {
+        "frames": [0, 1 * M, 2 * M, 5 * M],
+        "return_mean": [0, 2, 4, 10],
+        "bpt": [0, 1, 2, 5],
+    },
+    ("bounce_ppo", 1): {
+        "frames": [0, 1 * M, 2 * M, 5 * M],
+        "return_mean": [0, 4, 6, 12],
+        "bpt": [0, 3, 4, 7],
+    },
+    ("bounce_fd", 0): {
+        "frames": [0, 2 * M, 4 * M, 6 * M],
+        "return_mean": [0, 8, 12, 20],
+        "bpt": [0, 2, 6, 9],
+    },
+    ("bounce_fd", 1): {
+        "frames": [0, 2 * M, 4 * M],
+        "return_mean": [0, 4, 10],
+        "bpt": [0, 1, 3],
+    },  # stopped early
+}
+
+
+def write_runs(root: Path) -> None:
+    root.mkdir(parents=True)
+    (root / "multirun.yaml").write_text("hydra: {}\n")  # what Hydra leaves in a sweep directory: no run
+    for (exp, seed), columns in EVALS.items():
+        run = root / f"{exp}-s{seed}"
+        run.mkdir()
+        (run / "config.yaml").write_text(f"exp_name: {exp}\nseed: {seed}\nenv:\n  task: bounce\n")
+        with (run / "eval.csv").open("w", newline="") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(["frames", "return_mean", "return_std", "bounces", "bounces_per_10s"])
+            for frames, ret, per_10s in zip(
+                columns["frames"], columns["return_mean"], columns["bpt"], strict=True
+            ):
+                writer.writerow([frames, ret, 0.5, per_10s, per_10s])
+
+
+def read(path: Path) -> dict[tuple[str, str, str], dict[str, str]]:
+    with path.open(newline="") as handle:
+        return {(r["exp_name"], r["at"], r["metric"]): r for r in csv.DictReader(handle)}
+
+
+def test_table_of_two_experiments_with_two_seeds(tmp_path, capsys):
+    write_runs(tmp_path / "runs")
+    out = tmp_path / "table"
+    analyse.main(["table", str(tmp_path / "runs" / "*"), "--at", "1.5M,5M", "--reference", "--out", str(out)])
+    rows = read(out / "table.csv")
+    # 2 experiments x 3 points (final, 1.5M, 5M) x 2 metrics (return, bounces_per_10s)
+    assert len(rows) == 12
+
+    def check(exp, at, metric, frames, seeds, mean, mx):
+        row = rows[(exp, at, metric)]
+        assert (int(row["frames"]), int(row["seeds"])) == (frames, seeds)
+        assert (float(row["mean"]), float(row["max"])) == pytest.approx((mean, mx))
+        return row
+
+    # final: each run's last evaluation; frames the runs' mean (fd: 6M and 4M)
+    check("bounce_ppo", "final", "return", 5 * M, 2, (10 + 12) / 2, 12)
+    check("bounce_ppo", "final", "bounces_per_10s", 5 * M, 2, (5 + 7) / 2, 7)
+    check("bounce_fd", "final", "return", 5 * M, 2, (20 + 10) / 2, 20)
+    check("bounce_fd", "final", "bounces_per_10s", 5 * M, 2, (9 + 3) / 2, 9)
+    # 1.5M: halfway between the evaluations at 1M and 2M (ppo), 3/4 of the way from 0 to 2M (fd)
+    check("bounce_ppo", "1.5M", "return", 1.5 * M, 2, (3 + 5) / 2, 5)
+    check("bounce_ppo", "1.5M", "bounces_per_10s", 1.5 * M, 2, (1.5 + 3.5) / 2, 3.5)
+    check("bounce_fd", "1.5M", "return", 1.5 * M, 2, (6 + 3) / 2, 6)
+    check("bounce_fd", "1.5M", "bounces_per_10s", 1.5 * M, 2, (1.5 + 0.75) / 2, 1.5)
+    # 5M: fd seed 1 ended at 4M and does not count; fd seed 0 halfway between 4M and 6M
+    check("bounce_ppo", "5M", "return", 5 * M, 2, 11, 12)
+    check("bounce_fd", "5M", "return", 5 * M, 1, 16, 16)
+    fd_5m = check("bounce_fd", "5M", "bounces_per_10s", 5 * M, 1, 7.5, 7.5)
+    # the authors' numbers: at exactly 5M, and at their final evaluation (200M) beside our final
+    assert (fd_5m["ref_frames"], fd_5m["ref_mean"], fd_5m["ref_max"], fd_5m["ref_seeds"]) == (
+        "5000000",
+        "1.646",
+        "5.223",
+        "5",
+    )
+    final = rows[("bounce_fd", "final", "bounces_per_10s")]
+    assert (final["ref_frames"], final["ref_mean"], final["ref_max"]) == ("200000000", "69.87", "75.7")
+    assert rows[("bounce_ppo", "1.5M", "return")]["ref_mean"] == ""  # they kept no evaluation at 1.5M
+
+    markdown = (out / "table.md").read_text()
+    assert markdown in capsys.readouterr().out
+    assert "| bounce_fd | 5M | ours | 5M | 1 | 16 / 16 | 7.5 / 7.5 |" in markdown
+    assert "| | | authors | 5M | 5 | 27.8 / 113 | 1.65 / 5.22 |" in markdown
+    assert markdown.startswith("## bounce\n")
+
+
+def test_table_without_reference_has_no_reference_columns(tmp_path):
+    write_runs(tmp_path / "runs")
+    analyse.main(["table", str(tmp_path / "runs" / "bounce_ppo-*"), "--out", str(tmp_path / "t")])
+    rows = read(tmp_path / "t" / "table.csv")
+    assert sorted(rows) == [("bounce_ppo", "final", "bounces_per_10s"), ("bounce_ppo", "final", "return")]
+    assert "ref_mean" not in next(iter(rows.values()))
+    assert "authors" not in (tmp_path / "t" / "table.md").read_text()
+
+
+def test_frame_counts_and_metric_names():
+    assert parse_frames("2M,5M,10M") == [2 * M, 5 * M, 10 * M]
+    assert parse_frames("2.5M, 500k,1000,1e6") == [2_500_000, 500_000, 1000, M]
+    for bad in ("2X", "-1M", "0", "", "M"):
+        with pytest.raises(ValueError, match="--at"):
+            parse_frames(bad)
+    assert [frames_label(f) for f in (2_500_000, 400_000, 5 * M, 999)] == ["2.5M", "400k", "5M", "999"]
+    assert table_metric("return_mean") == "return" and table_metric("return_std") is None
+    assert table_metric("find_time_1cm") == "find_time_1cm_s" and table_metric("reached_1cm") == "reached_1cm"
+    assert table_metric("rotations_per_10s") == "rotations_per_10s" and table_metric("bounces") is None
+
+
+def test_reference_file_ships_every_experiment():
+    reference = load_reference()
+    for task, metric in (
+        ("find", "reached_1cm"),
+        ("bounce", "bounces_per_10s"),
+        ("baoding", "rotations_per_10s"),
+    ):
+        for variant in ("ppo_prop", "ppo", "fr", "tr", "fd", "tfd", "fd_mem", "ppo_prop_nolastaction"):
+            curve = reference[(f"{task}_{variant}", metric)]
+            assert max(curve) == 200 * M and 2_500_000 in curve
+
+
+def test_table_rejects_bad_input_with_one_line(tmp_path):
+    write_runs(tmp_path / "runs")
+    with pytest.raises(SystemExit, match=r"^analyse table: --at '5Q': give positive frame counts"):
+        analyse.main(["table", str(tmp_path / "runs" / "*"), "--at", "5Q", "--out", str(tmp_path / "t")])
+    (tmp_path / "runs" / "bounce_fd-s1" / "eval.csv").unlink()
+    with pytest.raises(SystemExit, match=r"bounce_fd-s1 has no eval\.csv"):
+        analyse.main(["table", str(tmp_path / "runs" / "*"), "--out", str(tmp_path / "t")])
