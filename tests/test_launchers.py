@@ -57,22 +57,32 @@ def test_slurm_launcher_config_composes():
 
 
 def test_a_multirun_job_runs_in_its_job_directory_and_continues_a_checkpoint_there(tmp_path):
+    basic = "hydra._internal.core_plugins.basic_sweeper.BasicSweeper"
     hydra_cfg = OmegaConf.create(
-        {"launcher": {**JOBLIB, "n_jobs": 64}, "runtime": {"output_dir": str(tmp_path)}}
+        {
+            "launcher": {**JOBLIB, "n_jobs": 64},
+            "runtime": {"output_dir": str(tmp_path)},
+            "sweeper": {"_target_": basic},
+            "job": {"num": 3},
+        }
     )
     cfg = compose_cfg(["+exp=find_ppo"])
-    place_multirun_job(cfg, hydra_cfg)
+    assert not place_multirun_job(cfg, hydra_cfg)
     assert (cfg.run_dir, cfg.resume) == (str(tmp_path), None)  # a first start: a new run there
     assert cfg.torch_threads == 1 and cfg.env.overrides.num_threads == 1  # one thread each
     (tmp_path / "checkpoints").mkdir()
     (tmp_path / "checkpoints" / "latest.pt").write_bytes(b"")
     cfg = compose_cfg(["+exp=find_ppo", "torch_threads=3", "+env.overrides.num_threads=2"])
-    place_multirun_job(cfg, hydra_cfg)
+    assert place_multirun_job(cfg, hydra_cfg)
     assert (cfg.run_dir, cfg.resume) == (None, str(tmp_path))  # requeued: continue the run
     assert cfg.torch_threads == 3 and cfg.env.overrides.num_threads == 2  # given values win
     cfg = compose_cfg(["+exp=find_ppo", f"run_dir={tmp_path / 'mine'}"])
-    place_multirun_job(cfg, hydra_cfg)
-    assert (cfg.run_dir, cfg.resume) == (str(tmp_path / "mine"), None)  # a given run_dir wins
+    assert not place_multirun_job(cfg, hydra_cfg)
+    assert (cfg.run_dir, cfg.resume) == (str(tmp_path / "mine" / "3"), None)  # one run_dir: a job each
+    hydra_cfg.sweeper._target_ = "hydra_plugins.roto_optuna_sweeper.sweeper.OptunaSweeper"
+    cfg = compose_cfg(["+exp=find_ppo", f"run_dir={tmp_path / 'trial'}"])
+    assert not place_multirun_job(cfg, hydra_cfg)
+    assert cfg.run_dir == str(tmp_path / "trial")  # our sweeper's trial directory stays as it is
 
 
 def multirun(sweep_dir: Path, *args: str, timeout: float = 400) -> subprocess.CompletedProcess:
