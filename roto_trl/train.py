@@ -23,6 +23,8 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: see roto_trl/__init__.py
+
 import hydra
 import numpy as np
 import torch
