@@ -6,7 +6,7 @@
 
 Reads top to bottom: build the envs, the agent, the PPO loss and advantage, the collector and
 the rollout buffer; then the loop: collect a rollout of every world, estimate advantages, update,
-evaluate every ``eval.interval`` iterations, log, checkpoint. Everything of a run lands in its
+evaluate every ``eval.every_frames`` frames, log, checkpoint. Everything of a run lands in its
 own directory: ``config.yaml``, ``train.csv``, ``eval.csv``, ``checkpoints/{latest,best}.pt``,
 ``plots/`` and ``summary.json``.
 """
@@ -31,7 +31,6 @@ import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
-from tqdm import tqdm
 
 from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.analysis.plots import plot_run
@@ -52,6 +51,8 @@ from roto_trl.trainers.errors import NonFiniteError
 from roto_trl.trainers.evaluation import evaluate
 from roto_trl.trainers.loggers import BACKENDS, MetricLogger, read_csv
 from roto_trl.trainers.ppo import ppo_update, rollout_stats, store_rollout
+from roto_trl.trainers.progress import TrainingProgress
+from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due
 from roto_trl.utils.resources import resource_dir
 
 EXIT_NON_FINITE = 3  # exit status of a run stopped by a NaN or inf
@@ -65,7 +66,6 @@ def check_config(cfg: DictConfig) -> None:
     positive = {
         "env.num_envs": cfg.env.num_envs,
         "eval.num_envs": cfg.eval.num_envs,
-        "eval.interval": cfg.eval.interval,
         "total_frames": cfg.total_frames,
         "agent.rollout_len": cfg.agent.rollout_len,
         "agent.minibatches": cfg.agent.minibatches,
@@ -74,6 +74,7 @@ def check_config(cfg: DictConfig) -> None:
     for key, value in positive.items():
         if not isinstance(value, int) or value < 1:
             raise ValueError(f"{key} must be a positive integer, got {value!r}")
+    eval_every_frames(cfg)  # a positive integer; the old eval.interval gets the equivalent value
     if cfg.env.num_envs * cfg.agent.rollout_len < cfg.agent.minibatches:
         raise ValueError("agent.minibatches exceeds one rollout's frames (env.num_envs * agent.rollout_len)")
     limit = cfg.time_limit_minutes
@@ -160,6 +161,7 @@ def train(cfg: DictConfig) -> Path:
     aux = make_aux_update(cfg, agent, env)  # the self-supervised objective, or None
 
     frames, iteration, best, wall_before = 0, 0, -math.inf, 0.0
+    eval_clock = EvalClock()
     best_eval: dict[str, float] | None = None
     if resumed is not None:
         agent.load_state_dict(resumed["agent"])
@@ -167,6 +169,7 @@ def train(cfg: DictConfig) -> Path:
         frames, iteration = int(resumed["frames"]), int(resumed["iteration"])
         best, wall_before = float(resumed["best_eval"]), float(resumed.get("wall_time", 0.0))
         best_eval = resumed.get("best_eval_metrics")
+        eval_clock = EvalClock(resumed.get("eval_time", 0.0))
         set_rng_state(resumed["rng"], env)
         if aux is not None:
             aux.loss.load_state_dict(resumed["aux"]["loss"])
@@ -195,6 +198,7 @@ def train(cfg: DictConfig) -> Path:
             "best_eval": best,
             "best_eval_metrics": best_eval,
             "wall_time": wall,
+            "eval_time": eval_clock.seconds,
             "rng": rng_state(env),
             "config": OmegaConf.to_container(cfg),
         }
@@ -207,19 +211,22 @@ def train(cfg: DictConfig) -> Path:
     last_ckpt = start
     ep_return = torch.zeros(cfg.env.num_envs, device=cfg.device)
     final_eval: dict[str, float] | None = None
-    postfix: dict[str, str] = {}
-    bar = tqdm(
-        total=int(cfg.total_frames), initial=frames, unit="frames", unit_scale=True, disable=not cfg.progress
-    )
+    every_frames = eval_every_frames(cfg)
+    progress = TrainingProgress(int(cfg.total_frames), frames, int(cfg.env.num_envs), bool(cfg.progress))
+    progress.watch(agent.policy)  # the bar moves with every collected step
+    postfix = progress.postfix
     size = f"{cfg.env.num_envs} worlds, {cfg.total_frames:,} frames"
     print(f"run: {run_dir.resolve()} ({cfg.exp_name}, {size})")
     if resumed is None:  # the untrained policy: where the learning curve starts
-        start_eval = evaluate(eval_env, agent, eval_seed(cfg))
-        logger.log("eval", {"iteration": 0, **start_eval}, 0)
+        with eval_clock:
+            start_eval = evaluate(eval_env, agent, eval_seed(cfg))
+        logger.log("eval", {"iteration": 0, **start_eval, "time": eval_clock.last}, 0)
         postfix["eval_return"] = f"{start_eval['return_mean']:.2f}"
     t_collect = time.perf_counter()
+    progress.collecting = True
     try:
         for batch in collector:
+            progress.collecting = False
             collect_s = time.perf_counter() - t_collect
             iteration += 1
             frames += batch.numel()
@@ -239,6 +246,7 @@ def train(cfg: DictConfig) -> Path:
                     "time/collect": collect_s,
                     "time/update": update_s,
                     "wall_time": wall,
+                    "eval_share": eval_clock.share(wall),  # of the wall time so far
                 }
             )
             logger.log("train", stats, frames)
@@ -247,10 +255,10 @@ def train(cfg: DictConfig) -> Path:
 
             out_of_time = cfg.time_limit_minutes is not None and wall >= 60 * float(cfg.time_limit_minutes)
             done_training = frames >= cfg.total_frames or out_of_time
-            if iteration % cfg.eval.interval == 0 or done_training:
-                t0 = time.perf_counter()
-                final_eval = evaluate(eval_env, agent, eval_seed(cfg))
-                final_eval["time"] = time.perf_counter() - t0
+            if evaluation_due(frames - batch.numel(), frames, every_frames) or done_training:
+                with eval_clock:
+                    final_eval = evaluate(eval_env, agent, eval_seed(cfg))
+                final_eval["time"] = eval_clock.last
                 logger.log("eval", {"iteration": iteration, **final_eval}, frames)
                 postfix["eval_return"] = f"{final_eval['return_mean']:.2f}"
                 if final_eval["return_mean"] > best:
@@ -260,15 +268,16 @@ def train(cfg: DictConfig) -> Path:
                 checkpoint(LATEST, wall)
                 last_ckpt = time.perf_counter()
             postfix["fps"] = f"{stats['fps']:,.0f}"
-            bar.set_postfix(postfix, refresh=False)
-            bar.update(batch.numel())
+            evals_left = int(cfg.total_frames) // every_frames - frames // every_frames
+            progress.iteration_done(frames, stats["fps"], evals_left, eval_clock.last)
             if done_training:
                 if out_of_time and frames < cfg.total_frames:
                     print(f"time limit of {cfg.time_limit_minutes} min reached at {frames:,} frames")
                 break
             t_collect = time.perf_counter()
+            progress.collecting = True
     finally:
-        bar.close()
+        progress.close()
         collector.shutdown()
         logger.close()
         eval_env.close()
@@ -282,6 +291,8 @@ def train(cfg: DictConfig) -> Path:
         "iterations": iteration,
         "wall_time_s": round(wall, 1),
         "frames_per_s": round(frames / wall, 1) if wall > 0 else None,
+        "eval_time_s": round(eval_clock.seconds, 1),
+        "eval_share": round(eval_clock.share(wall), 4),
         "best_eval": best_eval,
         "final_eval": final_eval,
         "run_dir": str(run_dir.resolve()),
@@ -290,6 +301,8 @@ def train(cfg: DictConfig) -> Path:
     plots = plot_run(run_dir)
     # the physical metrics of the best policy, for the report (also rewrites index.md)
     evaluation = evaluate_run(run_dir, "best", episodes=int(cfg.eval.num_envs))
+    share = eval_clock.share(wall)
+    print(f"evaluation: {eval_clock.seconds:.0f} s, {share:.1%} of the run's {wall:.0f} s wall time")
     print(f"run directory: {run_dir.resolve()}")
     print(f"plots: {', '.join(str(p.resolve()) for p in plots)}")
     print(f"summary: {(run_dir / 'summary.json').resolve()}")
