@@ -24,7 +24,7 @@ def test_every_frames_is_read_and_the_old_interval_is_refused_with_its_equivalen
     old = compose_cfg(["+exp=bounce_ppo", "env.num_envs=8", "eval.interval=5"])
     with pytest.raises(ValueError, match=r"eval.every_frames=640 for eval.interval=5"):  # 5 x 8 x 16
         eval_every_frames(old)
-    with pytest.raises(ValueError, match="eval.every_frames must be a positive integer"):
+    with pytest.raises(ValueError, match=r"eval.every_frames must be a positive integer"):
         eval_every_frames(compose_cfg(["+exp=bounce_ppo", "eval.every_frames=0"]))
     saved = compose_cfg(["+exp=bounce_ppo", "env.num_envs=8", "eval.interval=5", "~eval.every_frames"])
     assert eval_every_frames(saved) == 640  # a config saved before every_frames existed (resume)
