@@ -14,7 +14,7 @@ limit is 1 / (1/sim + 1/update) (collection and update run one after the other o
 cores), and ours / best peer. Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
 ``--fused`` adds a row of the bare update with ``torch.optim.Adam(fused=True)``.
 
-    python benchmarks/train_throughput.py                                   # bounce_ppo, bounce_fd at 256, 1024
+    python benchmarks/train_throughput.py          # bounce_ppo and bounce_fd at 256 and 1024 worlds
     python benchmarks/train_throughput.py --exps bounce_ppo --num-envs 256 --iterations 2
     python benchmarks/train_throughput.py --exps baoding_ppo --num-envs 1024 --no-peers --fused
 """
@@ -119,9 +119,8 @@ def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
     minibatch = agent.encode(buffer.sample()).detach().clone()
     aux_batch = None
     if aux is not None and (not aux.dynamics or bool(aux.memory.valid_starts(aux.seq_len).any())):
-        aux_batch = (
-            aux.memory.sample_sequences(aux.batch, aux.seq_len) if aux.dynamics else aux.memory.sample(aux.batch)
-        )
+        memory = aux.memory
+        aux_batch = memory.sample_sequences(aux.batch, aux.seq_len) if aux.dynamics else memory.sample(aux.batch)
     updates = {"bare": make_optimizer(cfg, agent)}
     if fused:
         updates["bare_fused"] = torch.optim.Adam(agent.parameters(), lr=float(cfg.agent.lr), fused=True)
