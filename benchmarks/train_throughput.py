@@ -119,8 +119,8 @@ def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
     minibatch = agent.encode(buffer.sample()).detach().clone()
     aux_batch = None
     if aux is not None and (not aux.dynamics or bool(aux.memory.valid_starts(aux.seq_len).any())):
-        memory = aux.memory
-        aux_batch = memory.sample_sequences(aux.batch, aux.seq_len) if aux.dynamics else memory.sample(aux.batch)
+        memory, size = aux.memory, aux.batch
+        aux_batch = memory.sample_sequences(size, aux.seq_len) if aux.dynamics else memory.sample(size)
     updates = {"bare": make_optimizer(cfg, agent)}
     if fused:
         updates["bare_fused"] = torch.optim.Adam(agent.parameters(), lr=float(cfg.agent.lr), fused=True)
