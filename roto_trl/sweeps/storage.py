@@ -22,6 +22,7 @@ RDB_SCHEMES = ("sqlite", "postgresql", "mysql")
 TABLE_RACE_ATTEMPTS = 5  # tries to open a fresh database that other workers are creating tables in
 
 
+
 def storage_url(storage: str | None, sweep_dir: Path) -> str:
     """The study's storage: ``storage`` as given, or SQLite in the sweep directory."""
     return storage or f"sqlite:///{(Path(sweep_dir) / DEFAULT_DB).resolve()}"
