@@ -26,7 +26,9 @@ import os
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: see roto_trl/__init__.py
 
 import argparse
+import contextlib
 import importlib.util
+import io
 import logging
 import time
 
@@ -138,7 +140,8 @@ def peer_fps(peer: str, cfg, iterations: int) -> float | None:
         return None
     from peers import PEER_RUNNERS  # benchmarks/peers.py: imports skrl and rsl_rl
 
-    return PEER_RUNNERS[peer](cfg, iterations)
+    with contextlib.redirect_stdout(io.StringIO()):  # their model summaries and per-iteration logs
+        return PEER_RUNNERS[peer](cfg, iterations)
 
 
 def main() -> None:
