@@ -246,7 +246,7 @@ def train(cfg: DictConfig) -> Path:
                     "time/collect": collect_s,
                     "time/update": update_s,
                     "wall_time": wall,
-                    "eval_share": eval_clock.share(wall),  # of the wall time so far
+                    "time/eval_share": eval_clock.share(wall),  # evaluation's part of the wall time so far
                 }
             )
             logger.log("train", stats, frames)

@@ -80,7 +80,7 @@ def test_smoke_run_of_every_experiment_writes_its_run_directory(exp, tmp_path):
     assert metric in summary["final_eval"]
     assert [int(r["frames"]) for r in rows(run / "train.csv")] == [128, 256, 384, 512]
     assert [int(r["frames"]) for r in rows(run / "eval.csv")] == [0, 256, 512]  # start, every 256 frames
-    assert 0 < float(rows(run / "train.csv")[-1]["eval_share"]) < 1
+    assert 0 < float(rows(run / "train.csv")[-1]["time/eval_share"]) < 1
     assert (run / "config.yaml").is_file() and (run / "plots" / "eval.png").is_file()
     assert json.loads((run / "eval.json").read_text())["physical"]  # the best checkpoint's metrics
     assert "![evaluation](plots/eval.png)" in (run / "index.md").read_text()

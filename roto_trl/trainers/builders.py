@@ -137,8 +137,14 @@ def make_rollout_buffer(cfg) -> TensorDictReplayBuffer:
 
 
 def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
-    """One Adam over encoder + policy + value."""
-    return torch.optim.Adam(agent.parameters(), lr=float(_cfg(cfg).agent.lr))
+    """One Adam over encoder + policy + value.
+
+    ``agent.fused_adam`` (default true) uses PyTorch's fused Adam, one kernel over all parameters:
+    on the CPU its step took 3.5-4 ms against 9-13 ms for the default per-parameter loop
+    (``benchmarks/train_throughput.py --fused``); same maths, rounding aside.
+    """
+    a = _cfg(cfg).agent
+    return torch.optim.Adam(agent.parameters(), lr=float(a.lr), fused=bool(a.get("fused_adam", True)))
 
 
 SSL_OBJECTIVES = ("none", "tr", "fr", "fd", "tfd")
