@@ -12,7 +12,8 @@ For each experiment and world count it measures, in one process:
 It prints frames/s, each phase's share of our iteration, ours / serial limit where the serial
 limit is 1 / (1/sim + 1/update) (collection and update run one after the other on the same
 cores), and ours / best peer. Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
-``--fused`` adds a column: the bare update with the other Adam (``agent.fused_adam`` negated).
+``--fused`` adds a column: the bare update with the other Adam (``agent.fused_adam`` negated);
+``--compile`` runs ours and the bare update with ``agent.compile=true``.
 
     python benchmarks/train_throughput.py          # bounce_ppo and bounce_fd at 256 and 1024 worlds
     python benchmarks/train_throughput.py --exps bounce_ppo --num-envs 256 --iterations 2
@@ -37,6 +38,7 @@ from hydra import compose, initialize_config_dir
 
 from roto_trl.trainers.builders import (
     agent_for_env,
+    compile_agent,
     make_advantage,
     make_aux_update,
     make_collector,
@@ -89,6 +91,7 @@ def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
     torch.manual_seed(0)
     env = make_train_env(cfg)
     agent = agent_for_env(cfg, env)
+    compile_agent(cfg, agent)
     loss_fn = make_ppo_loss(cfg, agent)
     advantage = make_advantage(cfg)
     optimizer = make_optimizer(cfg, agent)
@@ -153,6 +156,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=3, help="timed iterations (after one warm-up)")
     parser.add_argument("--no-peers", action="store_true", help="skip skrl and rsl_rl")
     parser.add_argument("--fused", action="store_true", help="also time the bare update with the other Adam")
+    parser.add_argument("--compile", action="store_true", help="agent.compile=true (torch.compile)")
     args = parser.parse_args()
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     print(
@@ -169,7 +173,9 @@ def main() -> None:
     with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
         for exp in args.exps:
             for n in args.num_envs:
-                cfg = compose("train", overrides=[f"+exp={exp}", f"env.num_envs={n}", "logger.backend=none"])
+                overrides = [f"+exp={exp}", f"env.num_envs={n}", "logger.backend=none"]
+                overrides += ["agent.compile=true"] if args.compile else []
+                cfg = compose("train", overrides=overrides)
                 sim_env = make_train_env(cfg)
                 sim = sim_only(sim_env, int(cfg.agent.rollout_len) * 2)
                 sim_env.close()

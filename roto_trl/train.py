@@ -36,6 +36,7 @@ from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.analysis.plots import plot_run
 from roto_trl.trainers.builders import (
     agent_for_env,
+    compile_agent,
     eval_seed,
     make_advantage,
     make_aux_update,
@@ -154,6 +155,7 @@ def train(cfg: DictConfig) -> Path:
 
     # 2. the agent, PPO loss, advantage estimator and optimiser
     agent = agent_for_env(cfg, env)
+    compile_agent(cfg, agent)  # agent.compile=true only
     loss_fn = make_ppo_loss(cfg, agent)
     advantage = make_advantage(cfg)
     optimizer = make_optimizer(cfg, agent)

@@ -1,10 +1,12 @@
-"""Evaluation scheduled by frames, its share of the wall time, and a progress bar that moves while
-the collector steps."""
+"""Evaluation scheduled by frames, its share of the wall time, a progress bar that moves while the
+collector steps, and the compiled agent (slow)."""
 
 import pytest
 from helpers import TINY, compose_cfg
 
+from roto_trl.train import train
 from roto_trl.trainers.builders import agent_for_env, make_collector, make_eval_env, make_train_env
+from roto_trl.trainers.checkpoint import load_checkpoint
 from roto_trl.trainers.evaluation import evaluate
 from roto_trl.trainers.progress import TrainingProgress, format_duration, time_to_budget
 from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due
@@ -67,3 +69,13 @@ def test_progress_moves_with_each_collected_step_and_not_during_evaluation():
     assert progress.bar.n == 128
     collector.shutdown()
     eval_env.close()
+
+
+@pytest.mark.slow
+def test_a_compiled_agent_trains_and_its_checkpoint_loads_uncompiled(tmp_path):
+    run = tmp_path / "run"
+    train(compose_cfg(["+exp=bounce_ppo", *TINY, "agent.compile=true", f"run_dir={run}"]))
+    cfg = compose_cfg(["+exp=bounce_ppo", *TINY])
+    env = make_train_env(cfg)
+    agent_for_env(cfg, env).load_state_dict(load_checkpoint(run)["agent"])  # same parameter names
+    env.close()

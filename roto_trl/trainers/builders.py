@@ -80,6 +80,19 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
     return Agent(keys, obs_dim, env.base_env.n_actions).to(cfg.device)
 
 
+def compile_agent(cfg, agent: Agent) -> None:
+    """With ``agent.compile``, ``torch.compile`` the encoder and heads in place.
+
+    ``Module.compile`` keeps parameter names, so checkpoints load into an uncompiled agent and back.
+    Off by default: compiling takes 25-60 s on 2 cores (again for each new batch shape, then
+    dynamic), needs a C++ compiler, and gave +15 % on the bare PPO update of Bounce at 256 worlds
+    (``benchmarks/train_throughput.py --compile``), too little to be worth it in short runs.
+    """
+    if bool(_cfg(cfg).agent.get("compile", False)):
+        for module in (agent.encoder, agent.policy_head, agent.value_head):
+            module.compile()
+
+
 def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
     """TorchRL's ``ClipPPOLoss`` with the paper's clipping and scales, over the heads.
 
