@@ -8,7 +8,9 @@ For each experiment and world count it measures, in one process:
            the same agent and losses (``ClipPPOLoss``, the SSL loss) on one minibatch of the
            real rollout drawn once, so no sampling, advantages or logging;
   skrl, rsl_rl  their PPO (same 1024-512-256 ELU network with LayerNorm, R, mb, le, lr, clip
-           values) on our Gymnasium interface, when installed (``pip install -e .[bench]``).
+           values) on our Gymnasium interface, when installed (``pip install -e .[bench]``);
+           they have no self-supervised objective, so for an SSL experiment (``bounce_fd``) they
+           run its PPO values without it and ours / peer understates ours.
 It prints frames/s, each phase's share of our iteration, ours / serial limit where the serial
 limit is 1 / (1/sim + 1/update) (collection and update run one after the other on the same
 cores), and ours / best peer. Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
