@@ -1,20 +1,37 @@
-"""Env steps/s of full PPO training beside sim-only stepping of the same env, in the same run.
+"""Training frames/s beside its two limits and the peers, on the same task, worlds, network and values.
 
-Training is ``roto_trl/train.py``'s iteration (collector with the policy acting, advantage
-estimate, PPO update) with the paper's Baoding PPO(prop-tactile) values (R 32, mb 4, le 8) at
-1024 worlds; sim-only steps the same env with random actions through ``step_and_maybe_reset``.
-Time per iteration is split into collection (of which acting: the policy's forward passes),
-advantages and update. Goal: training >= 0.5 of sim-only. ``--objectives`` adds one row per
-self-supervised objective (same PPO values, the objective's defaults from ``conf/ssl/``).
+For each experiment and world count it measures, in one process:
+  ours     ``roto_trl/train.py``'s iteration (collector with the policy acting, advantages, PPO
+           update, and the SSL step where the experiment has one), evaluation excluded;
+  sim      the same env stepped with random actions through ``step_and_maybe_reset``;
+  update   the bare update: ``epochs x minibatches`` steps of forward + backward + optimiser of
+           the same agent and losses (``ClipPPOLoss``, the SSL loss) on one minibatch of the
+           real rollout drawn once, so no sampling, advantages or logging;
+  skrl, rsl_rl  their PPO (same 1024-512-256 ELU network with LayerNorm, R, mb, le, lr, clip
+           values) on our Gymnasium interface, when installed (``pip install -e .[bench]``);
+           they have no self-supervised objective, so for an SSL experiment (``bounce_fd``) they
+           run its PPO values without it and ours / peer understates ours.
+It prints frames/s, each phase's share of our iteration, ours / serial limit where the serial
+limit is 1 / (1/sim + 1/update) (collection and update run one after the other on the same
+cores), and ours / best peer. Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
+``--fused`` adds a column: the bare update with the other Adam (``agent.fused_adam`` negated);
+``--compile`` runs ours and the bare update with ``agent.compile=true``.
 
-    python benchmarks/train_throughput.py
-    python benchmarks/train_throughput.py --objectives ppo tr fr fd:2 fd:4 fd:10 tfd:2
-    python benchmarks/train_throughput.py --exp find_ppo --num-envs 256 --iterations 2
+    python benchmarks/train_throughput.py          # bounce_ppo and bounce_fd at 256 and 1024 worlds
+    python benchmarks/train_throughput.py --exps bounce_ppo --num-envs 256 --iterations 2
+    python benchmarks/train_throughput.py --exps baoding_ppo --num-envs 1024 --no-peers --fused
 """
 
 from __future__ import annotations
 
+import os
+
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: see roto_trl/__init__.py
+
 import argparse
+import contextlib
+import importlib.util
+import io
 import logging
 import time
 
@@ -23,6 +40,7 @@ from hydra import compose, initialize_config_dir
 
 from roto_trl.trainers.builders import (
     agent_for_env,
+    compile_agent,
     make_advantage,
     make_aux_update,
     make_collector,
@@ -33,6 +51,8 @@ from roto_trl.trainers.builders import (
 )
 from roto_trl.trainers.ppo import ppo_update, store_rollout
 from roto_trl.utils.resources import resource_dir
+
+PEERS = ("skrl", "rsl_rl")
 
 
 def sim_only(env, steps: int) -> float:
@@ -46,21 +66,34 @@ def sim_only(env, steps: int) -> float:
     return steps * n / (time.perf_counter() - start)
 
 
-@torch.no_grad()
-def acting_seconds(agent, batch) -> float:
-    """Time of the policy's forward passes in one rollout: R calls on the N worlds' observations."""
-    obs = batch[:, 0].select(*agent.obs_keys).clone()
+def bare_update(cfg, agent, loss_fn, optimizer, params, aux, minibatch, aux_batch) -> float:
+    """Seconds of one iteration's updates (``epochs x minibatches`` steps) on fixed minibatches."""
+    a = cfg.agent
     start = time.perf_counter()
-    for _ in range(batch.shape[1]):
-        agent.policy(obs.clone())
+    for _ in range(int(a.epochs) * int(a.minibatches)):
+        losses = loss_fn(agent.encode(minibatch.clone(False)))
+        total = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
+        optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        torch.nn.utils.clip_grad_norm_(params, a.max_grad_norm)
+        optimizer.step()
+        if aux is not None and aux_batch is not None:
+            out = aux.loss(aux_batch.clone(False))
+            aux_total = aux.coeff * torch.stack([v for k, v in out.items() if k.startswith("loss_")]).sum()
+            aux.optimizer.zero_grad(set_to_none=True)
+            aux_total.backward()
+            aux.optimizer.step()
+            if aux.target_update is not None:
+                aux.target_update.step()
     return time.perf_counter() - start
 
 
-def measure(cfg, iterations: int) -> tuple[float, dict[str, float]]:
-    """Training steps/s over ``iterations`` (after one warm-up) and seconds per phase."""
+def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
+    """Our training's frames/s and seconds per phase per iteration, and the bare update's seconds."""
     torch.manual_seed(0)
     env = make_train_env(cfg)
     agent = agent_for_env(cfg, env)
+    compile_agent(cfg, agent)
     loss_fn = make_ppo_loss(cfg, agent)
     advantage = make_advantage(cfg)
     optimizer = make_optimizer(cfg, agent)
@@ -68,7 +101,7 @@ def measure(cfg, iterations: int) -> tuple[float, dict[str, float]]:
     params = list(agent.parameters())
     collector = make_collector(cfg, env, agent)
     buffer = make_rollout_buffer(cfg)
-    phases = {"collect": 0.0, "acting": 0.0, "advantages": 0.0, "update": 0.0}
+    phases = {"collect": 0.0, "advantages": 0.0, "update": 0.0}
     frames = 0
     t_collect = time.perf_counter()
     for i, batch in enumerate(collector):
@@ -81,7 +114,6 @@ def measure(cfg, iterations: int) -> tuple[float, dict[str, float]]:
         if i > 0:  # iteration 0 warms up
             frames += batch.numel()
             phases["collect"] += collect
-            phases["acting"] += acting_seconds(agent, batch)
             phases["advantages"] += t1 - t0
             phases["update"] += t2 - t1
         if i == iterations:
@@ -89,51 +121,83 @@ def measure(cfg, iterations: int) -> tuple[float, dict[str, float]]:
         t_collect = time.perf_counter()
     collector.shutdown()
     env.close()
-    total = phases["collect"] + phases["advantages"] + phases["update"]
-    return frames / total, {k: v / iterations for k, v in phases.items()}
+    result = {k: v / iterations for k, v in phases.items()}
+    result["fps"] = frames / sum(phases.values())
+    minibatch = agent.encode(buffer.sample()).detach().clone()
+    aux_batch = None
+    if aux is not None and (not aux.dynamics or bool(aux.memory.valid_starts(aux.seq_len).any())):
+        memory, size = aux.memory, aux.batch
+        aux_batch = memory.sample_sequences(size, aux.seq_len) if aux.dynamics else memory.sample(size)
+    updates = {"bare": make_optimizer(cfg, agent)}
+    if fused:
+        other = not bool(cfg.agent.fused_adam)
+        updates["bare_other"] = torch.optim.Adam(agent.parameters(), lr=float(cfg.agent.lr), fused=other)
+    for opt in updates.values():
+        bare_update(cfg, agent, loss_fn, opt, params, aux, minibatch, aux_batch)  # warm-up
+    for round_ in range(3):  # alternating rounds, the fastest of each: drift hits both alike
+        for name, opt in updates.items():
+            seconds = bare_update(cfg, agent, loss_fn, opt, params, aux, minibatch, aux_batch)
+            result[name] = seconds if round_ == 0 else min(result[name], seconds)
+    return result
+
+
+def peer_fps(peer: str, cfg, iterations: int) -> float | None:
+    """frames/s of ``peer``'s PPO on our Gymnasium interface, or None when it is not installed."""
+    if importlib.util.find_spec(peer) is None:
+        return None
+    from peers import PEER_RUNNERS  # benchmarks/peers.py: imports skrl and rsl_rl
+
+    with contextlib.redirect_stdout(io.StringIO()):  # their model summaries and per-iteration logs
+        return PEER_RUNNERS[peer](cfg, iterations)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    parser.add_argument("--exp", default="baoding_ppo")
-    parser.add_argument("--num-envs", type=int, default=1024)
+    parser.add_argument("--exps", nargs="+", default=["bounce_ppo", "bounce_fd"])
+    parser.add_argument("--num-envs", nargs="+", type=int, default=[256, 1024])
     parser.add_argument("--iterations", type=int, default=3, help="timed iterations (after one warm-up)")
-    parser.add_argument(
-        "--objectives",
-        nargs="+",
-        default=["ppo"],
-        help="rows: ppo (alone), tr, fr, fd:<n>, tfd:<n>, e.g. --objectives ppo tr fd:2 fd:4 fd:10",
-    )
+    parser.add_argument("--no-peers", action="store_true", help="skip skrl and rsl_rl")
+    parser.add_argument("--fused", action="store_true", help="also time the bare update with the other Adam")
+    parser.add_argument("--compile", action="store_true", help="agent.compile=true (torch.compile)")
     args = parser.parse_args()
     logging.getLogger("torchrl").setLevel(logging.WARNING)
-    base = [f"+exp={args.exp}", f"env.num_envs={args.num_envs}", "logger.backend=none"]
+    print(
+        f"torch {torch.__version__}, {torch.get_num_threads()} torch threads, "
+        f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}, {args.iterations} timed iterations; frames/s"
+    )
+    header = (
+        f"{'exp':<11} {'N':>5} {'ours':>7} {'sim':>7} {'update':>7} {'limit':>7} {'ours/lim':>8} "
+        f"{'collect':>7} {'adv':>5} {'upd':>5} {'skrl':>7} {'rsl_rl':>7} {'ours/peer':>9}"
+        + ("  other adam" if args.fused else "")
+    )
+    print(header)
+    print("-" * len(header))
     with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
-        cfg = compose("train", overrides=base)
-        sim_env = make_train_env(cfg)
-        sim = sim_only(sim_env, int(cfg.agent.rollout_len) * 2)
-        sim_env.close()
-        a = cfg.agent
-        print(
-            f"{args.exp}: {args.num_envs} worlds, R {a.rollout_len}, mb {a.minibatches}, le {a.epochs}, "
-            f"torch threads {torch.get_num_threads()}, {args.iterations} timed iterations"
-        )
-        print(f"sim only: {sim:,.0f} steps/s (random actions, same env)")
-        columns = ("steps/s", "/ sim", "collect", "acting", "adv", "update")
-        widths = (8, 6, 8, 8, 6, 8)
-        header = " ".join(f"{c:>{w}}" for c, w in zip(columns, widths, strict=True))
-        print(f"{'objective':<10} {header}   (share of an iteration; acting is part of collect)")
-        for spec in args.objectives:
-            name, _, n = spec.partition(":")
-            extra = [] if name == "ppo" else [f"ssl={name}", *([f"ssl.seq_len={n}"] if n else [])]
-            row_cfg = compose("train", overrides=[*base, *extra])
-            fps, per = measure(row_cfg, args.iterations)
-            total = per["collect"] + per["advantages"] + per["update"]
-            share = {k: v / total for k, v in per.items()}
-            print(
-                f"{spec:<10} {fps:>8,.0f} {fps / sim:>6.2f} {share['collect']:>8.1%} "
-                f"{share['acting']:>8.1%} {share['advantages']:>6.1%} {share['update']:>8.1%}",
-                flush=True,
-            )
+        for exp in args.exps:
+            for n in args.num_envs:
+                overrides = [f"+exp={exp}", f"env.num_envs={n}", "logger.backend=none"]
+                overrides += ["agent.compile=true"] if args.compile else []
+                cfg = compose("train", overrides=overrides)
+                sim_env = make_train_env(cfg)
+                sim = sim_only(sim_env, int(cfg.agent.rollout_len) * 2)
+                sim_env.close()
+                r = measure(cfg, args.iterations, args.fused)
+                frames = n * int(cfg.agent.rollout_len)
+                update = frames / r["bare"]
+                limit = 1.0 / (1.0 / sim + 1.0 / update)
+                total = r["collect"] + r["advantages"] + r["update"]
+                peers = {p: None if args.no_peers else peer_fps(p, cfg, args.iterations) for p in PEERS}
+                best = max((v for v in peers.values() if v), default=None)
+                cell = {p: f"{v:>7,.0f}" if v else f"{'-':>7}" for p, v in peers.items()}
+                line = (
+                    f"{exp:<11} {n:>5} {r['fps']:>7,.0f} {sim:>7,.0f} {update:>7,.0f} {limit:>7,.0f} "
+                    f"{r['fps'] / limit:>8.2f} {r['collect'] / total:>7.0%} {r['advantages'] / total:>5.0%} "
+                    f"{r['update'] / total:>5.0%} {cell['skrl']} {cell['rsl_rl']} "
+                    + (f"{r['fps'] / best:>9.2f}" if best else f"{'-':>9}")
+                )
+                if args.fused:
+                    line += f"  {frames / r['bare_other']:>10,.0f}"
+                print(line, flush=True)
 
 
 if __name__ == "__main__":

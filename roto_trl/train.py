@@ -6,7 +6,7 @@
 
 Reads top to bottom: build the envs, the agent, the PPO loss and advantage, the collector and
 the rollout buffer; then the loop: collect a rollout of every world, estimate advantages, update,
-evaluate every ``eval.interval`` iterations, log, checkpoint. Everything of a run lands in its
+evaluate every ``eval.every_frames`` frames, log, checkpoint. Everything of a run lands in its
 own directory: ``config.yaml``, ``train.csv``, ``eval.csv``, ``checkpoints/{latest,best}.pt``,
 ``plots/`` and ``summary.json``.
 """
@@ -25,19 +25,21 @@ from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
 
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: see roto_trl/__init__.py
+
 import hydra
 import numpy as np
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf, open_dict
-from tqdm import tqdm
 
 from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.analysis.plots import plot_run
 from roto_trl.envs.factory import task_config
 from roto_trl.trainers.builders import (
     agent_for_env,
+    compile_agent,
     eval_seed,
     make_advantage,
     make_aux_update,
@@ -55,8 +57,10 @@ from roto_trl.trainers.evaluation import evaluate
 from roto_trl.trainers.interrupts import StopRequests
 from roto_trl.trainers.loggers import BACKENDS, MetricLogger, read_csv
 from roto_trl.trainers.ppo import ppo_update, rollout_stats, store_rollout
+from roto_trl.trainers.progress import TrainingProgress
 from roto_trl.trainers.run_dir import finished_reason, resume_config, rewind
 from roto_trl.trainers.run_lock import RunLock
+from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due
 from roto_trl.trainers.threads import job_threads
 from roto_trl.utils.paths import writable_dir
 from roto_trl.utils.resources import resource_dir
@@ -72,7 +76,6 @@ def check_config(cfg: DictConfig) -> None:
     positive = {
         "env.num_envs": cfg.env.num_envs,
         "eval.num_envs": cfg.eval.num_envs,
-        "eval.interval": cfg.eval.interval,
         "total_frames": cfg.total_frames,
         "agent.rollout_len": cfg.agent.rollout_len,
         "agent.minibatches": cfg.agent.minibatches,
@@ -81,6 +84,7 @@ def check_config(cfg: DictConfig) -> None:
     for key, value in positive.items():
         if not isinstance(value, int) or value < 1:
             raise ValueError(f"{key} must be a positive integer, got {value!r}")
+    eval_every_frames(cfg)  # a positive integer; the old eval.interval gets the equivalent value
     if cfg.env.num_envs * cfg.agent.rollout_len < cfg.agent.minibatches:
         raise ValueError("agent.minibatches exceeds one rollout's frames (env.num_envs * agent.rollout_len)")
     limit = cfg.time_limit_minutes
@@ -252,6 +256,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
 
     # 2. the agent, PPO loss, advantage estimator and optimiser
     agent = agent_for_env(cfg, env)
+    compile_agent(cfg, agent)  # agent.compile=true only
     loss_fn = make_ppo_loss(cfg, agent)
     advantage = make_advantage(cfg)
     optimizer = make_optimizer(cfg, agent)
@@ -260,6 +265,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     aux = make_aux_update(cfg, agent, env)  # the self-supervised objective, or None
 
     frames, iteration, best, wall_before = 0, 0, -math.inf, 0.0
+    eval_clock = EvalClock()
     best_eval: dict[str, float] | None = None
     if resumed is not None:
         agent.load_state_dict(resumed["agent"])
@@ -267,6 +273,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
         frames, iteration = int(resumed["frames"]), int(resumed["iteration"])
         best, wall_before = float(resumed["best_eval"]), float(resumed.get("wall_time", 0.0))
         best_eval = resumed.get("best_eval_metrics")
+        eval_clock = EvalClock(resumed.get("eval_time", 0.0))
         set_rng_state(resumed["rng"], env)
         if aux is not None:
             aux.load_state_dict(resumed["aux"])
@@ -296,6 +303,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             "best_eval": best,
             "best_eval_metrics": best_eval,
             "wall_time": wall,
+            "eval_time": eval_clock.seconds,
             "rng": rng_state(env),
             "config": OmegaConf.to_container(cfg),
         }
@@ -314,19 +322,22 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     last_ckpt = start
     ep_return = torch.zeros(cfg.env.num_envs, device=cfg.device)
     final_eval: dict[str, float] | None = None
-    postfix: dict[str, str] = {}
-    bar = tqdm(
-        total=int(cfg.total_frames), initial=frames, unit="frames", unit_scale=True, disable=not cfg.progress
-    )
+    every_frames = eval_every_frames(cfg)
+    progress = TrainingProgress(int(cfg.total_frames), frames, int(cfg.env.num_envs), bool(cfg.progress))
+    progress.watch(agent.policy)  # the bar moves with every collected step
+    postfix = progress.postfix
     size = f"{cfg.env.num_envs} worlds, {cfg.total_frames:,} frames"
     print(f"run: {run_dir.resolve()} ({cfg.exp_name}, {size})")
     if resumed is None:  # the untrained policy: where the learning curve starts
-        start_eval = evaluate(eval_env, agent, eval_seed(cfg))
-        logger.log("eval", {"iteration": 0, **start_eval}, 0)
+        with eval_clock:
+            start_eval = evaluate(eval_env, agent, eval_seed(cfg))
+        logger.log("eval", {"iteration": 0, **start_eval, "time": eval_clock.last}, 0)
         postfix["eval_return"] = f"{start_eval['return_mean']:.2f}"
     t_collect = time.perf_counter()
+    progress.collecting = True
     try:
         for batch in collector:
+            progress.collecting = False
             collect_s = time.perf_counter() - t_collect
             iteration += 1
             frames += batch.numel()
@@ -346,6 +357,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
                     "time/collect": collect_s,
                     "time/update": update_s,
                     "wall_time": wall,
+                    "time/eval_share": eval_clock.share(wall),  # evaluation's part of the wall time so far
                 }
             )
             logger.log("train", stats, frames)
@@ -354,10 +366,10 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
 
             out_of_time = cfg.time_limit_minutes is not None and wall >= 60 * float(cfg.time_limit_minutes)
             done_training = frames >= cfg.total_frames or out_of_time
-            if iteration % cfg.eval.interval == 0 or done_training:
-                t0 = time.perf_counter()
-                final_eval = evaluate(eval_env, agent, eval_seed(cfg))
-                final_eval["time"] = time.perf_counter() - t0
+            if evaluation_due(frames - batch.numel(), frames, every_frames) or done_training:
+                with eval_clock:
+                    final_eval = evaluate(eval_env, agent, eval_seed(cfg))
+                final_eval["time"] = eval_clock.last
                 logger.log("eval", {"iteration": iteration, **final_eval}, frames)
                 postfix["eval_return"] = f"{final_eval['return_mean']:.2f}"
                 if final_eval["return_mean"] > best:
@@ -370,8 +382,8 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
                 checkpoint(LATEST, wall)
                 last_ckpt = time.perf_counter()
             postfix["fps"] = f"{stats['fps']:,.0f}"
-            bar.set_postfix(postfix, refresh=False)
-            bar.update(batch.numel())
+            evals_left = int(cfg.total_frames) // every_frames - frames // every_frames
+            progress.iteration_done(frames, stats["fps"], evals_left, eval_clock.last)
             if stop.signum is not None and not done_training:
                 raise TrainingInterrupted(frames, stop.signum, run_dir)
             if done_training:
@@ -379,13 +391,14 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
                     print(f"time limit of {cfg.time_limit_minutes} min reached at {frames:,} frames")
                 break
             t_collect = time.perf_counter()
+            progress.collecting = True
     except KeyboardInterrupt as err:  # a second signal: the iteration is abandoned
         if isinstance(err, TrainingInterrupted):
             raise
         logger.truncate(saved_frames or 0)
         raise TrainingInterrupted(saved_frames or 0, stop.signum or signal.SIGINT, run_dir) from None
     finally:
-        bar.close()
+        progress.close()
         collector.shutdown()
         logger.close()
         eval_env.close()
@@ -399,6 +412,8 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
         "iterations": iteration,
         "wall_time_s": round(wall, 1),
         "frames_per_s": round(frames / wall, 1) if wall > 0 else None,
+        "eval_time_s": round(eval_clock.seconds, 1),
+        "eval_share": round(eval_clock.share(wall), 4),
         "best_eval": best_eval,
         "final_eval": final_eval,
         "run_dir": str(run_dir.resolve()),
@@ -407,6 +422,8 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     plots = plot_run(run_dir)
     # the physical metrics of the best policy, for the report (also rewrites index.md)
     evaluation = evaluate_run(run_dir, "best", episodes=int(cfg.eval.num_envs))
+    share = eval_clock.share(wall)
+    print(f"evaluation: {eval_clock.seconds:.0f} s, {share:.1%} of the run's {wall:.0f} s wall time")
     print(f"run directory: {run_dir.resolve()}")
     print(f"plots: {', '.join(str(p.resolve()) for p in plots)}")
     print(f"summary: {(run_dir / 'summary.json').resolve()}")

@@ -14,6 +14,7 @@ TINY = [
     "agent.epochs=2",
     "total_frames=256",
     "eval.num_envs=2",
+    "eval.every_frames=256",
     "+env.overrides.episode_steps=40",
     "progress=false",
     "torch_threads=1",

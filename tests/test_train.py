@@ -74,11 +74,13 @@ def test_smoke_run_of_every_experiment_writes_its_run_directory(exp, tmp_path):
     summary_path = train(compose_cfg(overrides))
     summary = json.loads(summary_path.read_text())
     assert summary["frames"] == 512 and summary["iterations"] == 4
+    assert 0 < summary["eval_share"] < 1 and summary["eval_time_s"] > 0  # evaluation's part of the wall time
     assert summary["final_eval"] is not None and "return_mean" in summary["final_eval"]
     metric = {"find": "find_time_3cm", "bounce": "bounces", "baoding": "rotations"}[task]
     assert metric in summary["final_eval"]
     assert [int(r["frames"]) for r in rows(run / "train.csv")] == [128, 256, 384, 512]
-    assert [int(r["frames"]) for r in rows(run / "eval.csv")] == [0, 256, 512]  # start, every 2 iterations
+    assert [int(r["frames"]) for r in rows(run / "eval.csv")] == [0, 256, 512]  # start, every 256 frames
+    assert 0 < float(rows(run / "train.csv")[-1]["time/eval_share"]) < 1
     assert (run / "config.yaml").is_file() and (run / "plots" / "eval.png").is_file()
     assert json.loads((run / "eval.json").read_text())["physical"]  # the best checkpoint's metrics
     assert "![evaluation](plots/eval.png)" in (run / "index.md").read_text()

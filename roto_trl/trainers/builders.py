@@ -83,6 +83,19 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
     return Agent(keys, obs_dim, env.base_env.n_actions, shared_encoder=shared).to(cfg.device)
 
 
+def compile_agent(cfg, agent: Agent) -> None:
+    """With ``agent.compile``, ``torch.compile`` the encoder and heads in place.
+
+    ``Module.compile`` keeps parameter names, so checkpoints load into an uncompiled agent and back.
+    Off by default: compiling takes 25-60 s on 2 cores (again for each new batch shape, then
+    dynamic), needs a C++ compiler, and gave +15 % on the bare PPO update of Bounce at 256 worlds
+    (``benchmarks/train_throughput.py --compile``), too little to be worth it in short runs.
+    """
+    if bool(_cfg(cfg).agent.get("compile", False)):
+        for module in (agent.encoder, agent.policy_head, agent.value_head):
+            module.compile()
+
+
 def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
     """TorchRL's ``ClipPPOLoss`` with the paper's clipping and scales, over the heads.
 
@@ -146,8 +159,14 @@ def make_rollout_buffer(cfg) -> TensorDictReplayBuffer:
 
 def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     """The PPO optimiser: one Adam over encoder + policy + value (the SSL gradient reaches the
-    encoder through the same backward, see ``roto_trl.trainers.auxiliary``)."""
-    return torch.optim.Adam(agent.parameters(), lr=float(_cfg(cfg).agent.lr))
+    encoder through the same backward, see ``roto_trl.trainers.auxiliary``).
+
+    ``agent.fused_adam`` (default true) uses PyTorch's fused Adam, one kernel over all parameters:
+    on the CPU its step took 3.5-4 ms against 9-13 ms for the default per-parameter loop
+    (``benchmarks/train_throughput.py --fused``); same maths, rounding aside.
+    """
+    a = _cfg(cfg).agent
+    return torch.optim.Adam(agent.parameters(), lr=float(a.lr), fused=bool(a.get("fused_adam", True)))
 
 
 LR_SCHEDULES = ("fixed", "kl_adaptive")

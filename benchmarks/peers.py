@@ -1,0 +1,190 @@
+"""The peers of ``train_throughput.py``: skrl's and rsl_rl's PPO on our Gymnasium interface.
+
+Each runs the experiment's task, worlds and PPO values (R, mb, le, lr, gamma, lambda, clips,
+gradient clip) with our networks (``roto_trl.modules.networks``: encoder 1024-512-256 with
+LayerNorm + ELU, tanh-mean Gaussian policy head with state-independent log-std, value head) on
+``gymnasium.make_vec("RoTO/<Task>-v0")``, and returns frames/s over ``iterations`` timed
+iterations after one warm-up. Imported only when the peer is installed (``.[bench]``).
+"""
+
+from __future__ import annotations
+
+import time
+
+import gymnasium
+import torch
+
+from roto_trl.envs.registration import ENV_IDS
+from roto_trl.modules.networks import Encoder, PolicyHead, ValueHead
+
+
+def _vec_env(cfg):
+    overrides = dict(cfg.env.overrides or {})
+    return gymnasium.make_vec(ENV_IDS[cfg.env.task], num_envs=int(cfg.env.num_envs), **overrides)
+
+
+def skrl_fps(cfg, iterations: int) -> float:
+    from skrl.agents.torch.ppo import PPO, PPO_CFG
+    from skrl.envs.wrappers.torch import wrap_env
+    from skrl.memories.torch import RandomMemory
+    from skrl.models.torch import DeterministicMixin, GaussianMixin, Model
+
+    class Policy(GaussianMixin, Model):
+        def __init__(self, observation_space, action_space, device):
+            Model.__init__(
+                self, observation_space=observation_space, action_space=action_space, device=device
+            )
+            GaussianMixin.__init__(self, clip_actions=False)
+            self.encoder = Encoder(self.num_observations)
+            self.head = PolicyHead(self.encoder.latent_dim, self.num_actions)
+
+        def compute(self, inputs, role=""):
+            loc, scale = self.head(self.encoder(inputs["observations"]))
+            return loc, {"log_std": scale.log()}
+
+    class Value(DeterministicMixin, Model):
+        def __init__(self, observation_space, action_space, device):
+            Model.__init__(
+                self, observation_space=observation_space, action_space=action_space, device=device
+            )
+            DeterministicMixin.__init__(self)
+            self.encoder = Encoder(self.num_observations)
+            self.head = ValueHead(self.encoder.latent_dim)
+
+        def compute(self, inputs, role=""):
+            return self.head(self.encoder(inputs["observations"])), {}
+
+    env = wrap_env(_vec_env(cfg), wrapper="gymnasium")
+    a = cfg.agent
+    rollout = int(a.rollout_len)
+    memory = RandomMemory(memory_size=rollout, num_envs=env.num_envs, device=env.device)
+    models = {
+        "policy": Policy(env.observation_space, env.action_space, env.device),
+        "value": Value(env.observation_space, env.action_space, env.device),
+    }
+    ppo_cfg = PPO_CFG(
+        rollouts=rollout,
+        learning_epochs=int(a.epochs),
+        mini_batches=int(a.minibatches),
+        discount_factor=float(a.gamma),
+        gae_lambda=float(a.lmbda),
+        learning_rate=float(a.lr),
+        grad_norm_clip=float(a.max_grad_norm),
+        ratio_clip=float(a.clip_epsilon),
+        value_clip=float(a.clip_value),
+        entropy_loss_scale=float(a.entropy_coeff),
+        value_loss_scale=float(a.critic_coeff),
+    )
+    ppo_cfg.experiment.write_interval = 0
+    ppo_cfg.experiment.checkpoint_interval = 0
+    agent = PPO(
+        models=models,
+        memory=memory,
+        observation_space=env.observation_space,
+        action_space=env.action_space,
+        device=env.device,
+        cfg=ppo_cfg,
+    )
+    agent.init()
+    agent.enable_training_mode(True)  # as skrl's SequentialTrainer does: otherwise it never updates
+    observations, _ = env.reset()
+    elapsed, timestep = 0.0, 0
+    for it in range(iterations + 1):
+        start = time.perf_counter()
+        for _ in range(rollout):
+            agent.pre_interaction(timestep=timestep, timesteps=10**9)
+            with torch.no_grad():
+                actions, _ = agent.act(observations, None, timestep=timestep, timesteps=10**9)
+                next_obs, rewards, terminated, truncated, infos = env.step(actions)
+                agent.record_transition(
+                    observations=observations,
+                    states=None,
+                    actions=actions,
+                    rewards=rewards,
+                    next_observations=next_obs,
+                    next_states=None,
+                    terminated=terminated,
+                    truncated=truncated,
+                    infos=infos,
+                    timestep=timestep,
+                    timesteps=10**9,
+                )
+            agent.post_interaction(timestep=timestep, timesteps=10**9)  # updates after R steps
+            observations = next_obs
+            timestep += 1
+        if it > 0:
+            elapsed += time.perf_counter() - start
+    env.close()
+    return iterations * rollout * int(cfg.env.num_envs) / elapsed
+
+
+def rsl_rl_fps(cfg, iterations: int) -> float:
+    """rsl_rl's ``OnPolicyRunner``; its MLP has our layer sizes and ELU but no LayerNorm."""
+    from rsl_rl.env import VecEnv
+    from rsl_rl.runners import OnPolicyRunner
+    from tensordict import TensorDict
+
+    class GymnasiumVecEnv(VecEnv):
+        """rsl_rl's environment interface over our Gymnasium vector env (numpy in and out)."""
+
+        def __init__(self, envs):
+            self.envs = envs
+            self.num_envs = envs.num_envs
+            self.num_actions = envs.action_space.shape[-1]
+            self.max_episode_length = int(cfg.env.overrides.get("episode_steps", 600))
+            self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long)
+            self.device, self.cfg = "cpu", {}
+            self._obs = self._tensordict(envs.reset(seed=0)[0])
+
+        def _tensordict(self, obs) -> TensorDict:
+            flat = torch.cat([torch.as_tensor(obs[k]) for k in ("prop", "tactile")], dim=-1).float()
+            return TensorDict({"policy": flat}, batch_size=[self.num_envs])
+
+        def get_observations(self) -> TensorDict:
+            return self._obs
+
+        def step(self, actions):
+            obs, reward, terminated, truncated, _ = self.envs.step(actions.detach().numpy())
+            self._obs = self._tensordict(obs)
+            dones = torch.as_tensor(terminated | truncated)
+            extras = {"time_outs": torch.as_tensor(truncated)}
+            return self._obs, torch.as_tensor(reward).float(), dones, extras
+
+    a = cfg.agent
+    train_cfg = {
+        "num_steps_per_env": int(a.rollout_len),
+        "save_interval": 10**9,
+        "obs_groups": {"actor": ["policy"], "critic": ["policy"]},
+        "algorithm": {
+            "class_name": "PPO",
+            "num_learning_epochs": int(a.epochs),
+            "num_mini_batches": int(a.minibatches),
+            "clip_param": float(a.clip_epsilon),
+            "gamma": float(a.gamma),
+            "lam": float(a.lmbda),
+            "value_loss_coef": float(a.critic_coeff),
+            "entropy_coef": float(a.entropy_coeff),
+            "learning_rate": float(a.lr),
+            "max_grad_norm": float(a.max_grad_norm),
+            "schedule": "fixed",
+            "normalize_advantage_per_mini_batch": True,
+        },
+        "actor": {
+            "class_name": "MLPModel",
+            "hidden_dims": [1024, 512, 256],
+            "activation": "elu",
+            "distribution_cfg": {"class_name": "GaussianDistribution"},
+        },
+        "critic": {"class_name": "MLPModel", "hidden_dims": [1024, 512, 256], "activation": "elu"},
+    }
+    env = GymnasiumVecEnv(_vec_env(cfg))
+    runner = OnPolicyRunner(env, train_cfg, log_dir=None, device="cpu")
+    runner.learn(1)  # warm-up
+    start = time.perf_counter()
+    runner.learn(iterations)
+    elapsed = time.perf_counter() - start
+    env.envs.close()
+    return iterations * int(a.rollout_len) * env.num_envs / elapsed
+
+
+PEER_RUNNERS = {"skrl": skrl_fps, "rsl_rl": rsl_rl_fps}

@@ -1,0 +1,76 @@
+"""A run's progress bar that moves while the collector steps, and its first estimate of the time
+to the frame budget.
+
+A long run's first iteration can take minutes (4096 worlds x 32 steps); a bar updated once per
+iteration would show nothing until then. The bar here moves by one step of every world each
+time the policy acts during collection (a forward hook on the policy, active only while the
+loop collects, so evaluation episodes do not count).
+"""
+
+from __future__ import annotations
+
+import torch
+from tqdm import tqdm
+
+
+def format_duration(seconds: float) -> str:
+    """``3h 05m``, ``4m 10s`` or ``12s``."""
+    seconds = max(0, round(seconds))
+    hours, rest = divmod(seconds, 3600)
+    minutes, secs = divmod(rest, 60)
+    if hours:
+        return f"{hours}h {minutes:02d}m"
+    return f"{minutes}m {secs:02d}s" if minutes else f"{secs}s"
+
+
+def time_to_budget(remaining_frames: int, fps: float, evals_left: int, eval_seconds: float) -> float:
+    """Seconds to train ``remaining_frames`` at ``fps`` plus ``evals_left`` evaluations of
+    ``eval_seconds`` each."""
+    return remaining_frames / fps + evals_left * eval_seconds
+
+
+class TrainingProgress:
+    """The bar of a run from ``frames`` to ``total_frames``, stepped by ``num_envs`` per collected step.
+
+    Args:
+        total_frames: the run's frame budget.
+        frames: frames already done (a resumed run's).
+        num_envs: training worlds: frames per collected step.
+        enabled: draw the bar (the estimate line is printed either way).
+    """
+
+    def __init__(self, total_frames: int, frames: int, num_envs: int, enabled: bool) -> None:
+        self.bar = tqdm(
+            total=total_frames, initial=frames, unit="frames", unit_scale=True, disable=not enabled
+        )
+        self.total_frames = int(total_frames)
+        self.num_envs = int(num_envs)
+        self.collecting = False
+        self.postfix: dict[str, str] = {}
+        self._estimated = False
+
+    def watch(self, policy: torch.nn.Module) -> torch.utils.hooks.RemovableHandle:
+        """Move the bar each time ``policy`` acts while :attr:`collecting` is set."""
+        return policy.register_forward_hook(self._on_policy_step)
+
+    def _on_policy_step(self, module, args, output) -> None:
+        if self.collecting:
+            self.bar.update(self.num_envs)
+
+    def iteration_done(self, frames: int, fps: float, evals_left: int, eval_seconds: float) -> None:
+        """Set the bar to ``frames``; after the first timed iteration print the expected speed and
+        the time to the budget (training at ``fps`` plus ``evals_left`` evaluations)."""
+        self.bar.n = frames
+        self.bar.set_postfix(self.postfix, refresh=False)
+        self.bar.refresh()
+        if not self._estimated and fps > 0:
+            self._estimated = True
+            remaining = max(0, self.total_frames - frames)
+            eta = time_to_budget(remaining, fps, evals_left, eval_seconds)
+            self.bar.write(
+                f"speed: {fps:,.0f} frames/s (first iteration); {remaining:,} frames to the budget: "
+                f"about {format_duration(eta)} with {evals_left} evaluations of {eval_seconds:.1f} s"
+            )
+
+    def close(self) -> None:
+        self.bar.close()

@@ -1,0 +1,67 @@
+"""When training evaluates, and what evaluation costs: evaluation is scheduled by frames.
+
+Scheduling by frames (``eval.every_frames``) rather than by iterations keeps a run's curve points
+at the same frames whatever its worlds and rollout length, so runs of different sizes compare
+point by point, and keeps evaluation's share of the wall time predictable (README, "Training").
+"""
+
+from __future__ import annotations
+
+import time
+
+from omegaconf import DictConfig
+
+
+def eval_every_frames(cfg: DictConfig) -> int:
+    """Frames between evaluations, from ``eval.every_frames``.
+
+    The old ``eval.interval`` (iterations) is refused with the equivalent value, so a command
+    written for it fails with the fix instead of silently evaluating at another rate; a config
+    saved by an older run (resumed) has no ``every_frames`` and is converted.
+    """
+    frames_per_iteration = int(cfg.env.num_envs) * int(cfg.agent.rollout_len)
+    interval = cfg.eval.get("interval", None)
+    every = cfg.eval.get("every_frames", None)
+    if interval is not None and every is None:
+        return int(interval) * frames_per_iteration
+    if interval is not None:
+        raise ValueError(
+            f"eval.interval (iterations) was replaced by eval.every_frames (frames); use "
+            f"eval.every_frames={int(interval) * frames_per_iteration} for eval.interval={interval} "
+            f"(env.num_envs x agent.rollout_len = {frames_per_iteration} frames per iteration)"
+        )
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"eval.every_frames must be a positive integer, got {every!r}")
+    return every
+
+
+def evaluation_due(frames_before: int, frames_after: int, every_frames: int) -> bool:
+    """Whether an iteration that took the frame count from ``frames_before`` to ``frames_after``
+    crossed a multiple of ``every_frames`` (evaluations land on the first iteration at or past
+    each multiple, so a run evaluates about ``total_frames / every_frames`` times)."""
+    return frames_after // every_frames > frames_before // every_frames
+
+
+class EvalClock:
+    """Seconds spent evaluating during a run, to report evaluation's share of the wall time.
+
+    Args:
+        seconds: evaluation time of the run so far (a resumed run's, from its checkpoint).
+    """
+
+    def __init__(self, seconds: float = 0.0) -> None:
+        self.seconds = float(seconds)
+        self.last = 0.0  # seconds of the latest evaluation
+        self._start: float | None = None
+
+    def __enter__(self) -> EvalClock:
+        self._start = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.last = time.perf_counter() - self._start
+        self.seconds += self.last
+
+    def share(self, wall: float) -> float:
+        """Evaluation's fraction of ``wall`` seconds (0 before any time has passed)."""
+        return self.seconds / wall if wall > 0 else 0.0

@@ -1,0 +1,81 @@
+"""Evaluation scheduled by frames, its share of the wall time, a progress bar that moves while the
+collector steps, and the compiled agent (slow)."""
+
+import pytest
+from helpers import TINY, compose_cfg
+
+from roto_trl.train import train
+from roto_trl.trainers.builders import agent_for_env, make_collector, make_eval_env, make_train_env
+from roto_trl.trainers.checkpoint import load_checkpoint
+from roto_trl.trainers.evaluation import evaluate
+from roto_trl.trainers.progress import TrainingProgress, format_duration, time_to_budget
+from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due
+
+
+def test_evaluation_falls_on_the_first_iteration_past_each_multiple():
+    # 3000 frames per iteration, every 5000: 0->3000 no, 3000->6000 crosses 5000, 6000->9000 no,
+    # 9000->12000 crosses 10000
+    steps = [(0, 3000), (3000, 6000), (6000, 9000), (9000, 12000)]
+    assert [evaluation_due(a, b, 5000) for a, b in steps] == [False, True, False, True]
+    assert evaluation_due(0, 5000, 5000) and not evaluation_due(5000, 9999, 5000)
+
+
+def test_every_frames_is_read_and_the_old_interval_is_refused_with_its_equivalent():
+    cfg = compose_cfg(["+exp=bounce_ppo", "env.num_envs=8", "eval.every_frames=1000"])
+    assert eval_every_frames(cfg) == 1000
+    old = compose_cfg(["+exp=bounce_ppo", "env.num_envs=8", "eval.interval=5"])
+    with pytest.raises(ValueError, match=r"eval.every_frames=640 for eval.interval=5"):  # 5 x 8 x 16
+        eval_every_frames(old)
+    with pytest.raises(ValueError, match=r"eval.every_frames must be a positive integer"):
+        eval_every_frames(compose_cfg(["+exp=bounce_ppo", "eval.every_frames=0"]))
+    saved = compose_cfg(["+exp=bounce_ppo", "env.num_envs=8", "eval.interval=5", "~eval.every_frames"])
+    assert eval_every_frames(saved) == 640  # a config saved before every_frames existed (resume)
+
+
+def test_eval_clock_sums_evaluations_and_gives_their_share():
+    clock = EvalClock(seconds=3.0)
+    with clock:
+        pass
+    assert clock.seconds == pytest.approx(3.0 + clock.last) and clock.last >= 0.0
+    assert clock.share(12.0) == pytest.approx(clock.seconds / 12.0) and EvalClock().share(0.0) == 0.0
+
+
+def test_time_to_budget_and_its_format():
+    assert time_to_budget(1_000_000, 2000.0, 4, 5.0) == pytest.approx(520.0)  # 500 s + 4 x 5 s
+    assert [format_duration(s) for s in (12.4, 250, 11_100)] == ["12s", "4m 10s", "3h 05m"]
+
+
+def test_progress_moves_with_each_collected_step_and_not_during_evaluation():
+    cfg = compose_cfg(["+exp=find_ppo", *TINY])  # 8 worlds, 16 steps per rollout
+    env, eval_env = make_train_env(cfg), make_eval_env(cfg)
+    agent = agent_for_env(cfg, env)
+    progress = TrainingProgress(10_000, 0, 8, enabled=True)
+    progress.watch(agent.policy)
+    seen = []  # the bar's position at each collected step, before the iteration ends
+
+    def record(*_):
+        if progress.collecting:
+            seen.append(progress.bar.n)
+
+    agent.policy.register_forward_hook(record)
+    collector = make_collector(cfg, env, agent)
+    progress.collecting = True
+    batch = next(iter(collector))
+    progress.collecting = False
+    assert seen == [8 * (i + 1) for i in range(16)] and batch.numel() == 128
+    evaluate(eval_env, agent, seed=1)  # evaluation episodes do not move the bar
+    assert progress.bar.n == 128
+    progress.iteration_done(128, 1000.0, 2, 1.0)
+    assert progress.bar.n == 128
+    collector.shutdown()
+    eval_env.close()
+
+
+@pytest.mark.slow
+def test_a_compiled_agent_trains_and_its_checkpoint_loads_uncompiled(tmp_path):
+    run = tmp_path / "run"
+    train(compose_cfg(["+exp=bounce_ppo", *TINY, "agent.compile=true", f"run_dir={run}"]))
+    cfg = compose_cfg(["+exp=bounce_ppo", *TINY])
+    env = make_train_env(cfg)
+    agent_for_env(cfg, env).load_state_dict(load_checkpoint(run)["agent"])  # same parameter names
+    env.close()
