@@ -60,7 +60,7 @@ def test_a_trained_run_logs_episode_returns_and_evaluation_time(tmp_path):
     returns = train_log["episode_return"]
     assert math.isnan(returns[0]) and any(math.isfinite(r) for r in returns)
     assert "episode/bounces" in train_log and "episodes" in train_log
-    assert math.isnan(eval_log["time"][0]) and eval_log["time"][-1] > 0  # the start evaluation is untimed
+    assert all(t > 0 for t in eval_log["time"])  # every evaluation is timed, the start's too
 
 
 # ---------------------------------------------------------------------------- 1. one writer
