@@ -118,8 +118,14 @@ def skrl_fps(cfg, iterations: int) -> float:
     return iterations * rollout * int(cfg.env.num_envs) / elapsed
 
 
-def rsl_rl_fps(cfg, iterations: int) -> float:
-    """rsl_rl's ``OnPolicyRunner``; its MLP has our layer sizes and ELU but no LayerNorm."""
+def rsl_rl_runner(cfg, log_dir: str | None = None):
+    """rsl_rl's ``OnPolicyRunner`` on our Gymnasium vector env, with the experiment's values.
+
+    Its MLPs have our layer sizes and ELU but no LayerNorm; actor and critic are separate
+    networks (rsl_rl's design). Returns the runner and its env, whose ``episodes`` list collects
+    ``(frames so far, metric value)`` for every training episode that ends (the task's first
+    metric: bounces, rotations, ...).
+    """
     from rsl_rl.env import VecEnv
     from rsl_rl.runners import OnPolicyRunner
     from tensordict import TensorDict
@@ -134,7 +140,9 @@ def rsl_rl_fps(cfg, iterations: int) -> float:
             self.max_episode_length = int(cfg.env.overrides.get("episode_steps", 600))
             self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long)
             self.device, self.cfg = "cpu", {}
-            self._obs = self._tensordict(envs.reset(seed=0)[0])
+            self.metric = envs.unwrapped.env.base_env.METRICS[0]
+            self.frames, self.episodes = 0, []
+            self._obs = self._tensordict(envs.reset(seed=int(cfg.seed))[0])
 
         def _tensordict(self, obs) -> TensorDict:
             flat = torch.cat([torch.as_tensor(obs[k]) for k in ("prop", "tactile")], dim=-1).float()
@@ -144,7 +152,11 @@ def rsl_rl_fps(cfg, iterations: int) -> float:
             return self._obs
 
         def step(self, actions):
-            obs, reward, terminated, truncated, _ = self.envs.step(actions.detach().numpy())
+            obs, reward, terminated, truncated, info = self.envs.step(actions.detach().numpy())
+            self.frames += self.num_envs
+            for ended in info.get("final_info", ()):
+                if ended is not None:
+                    self.episodes.append((self.frames, float(ended[self.metric])))
             self._obs = self._tensordict(obs)
             dones = torch.as_tensor(terminated | truncated)
             extras = {"time_outs": torch.as_tensor(truncated)}
@@ -178,13 +190,18 @@ def rsl_rl_fps(cfg, iterations: int) -> float:
         "critic": {"class_name": "MLPModel", "hidden_dims": [1024, 512, 256], "activation": "elu"},
     }
     env = GymnasiumVecEnv(_vec_env(cfg))
-    runner = OnPolicyRunner(env, train_cfg, log_dir=None, device="cpu")
+    return OnPolicyRunner(env, train_cfg, log_dir=log_dir, device="cpu"), env
+
+
+def rsl_rl_fps(cfg, iterations: int) -> float:
+    """Frames/s of rsl_rl's PPO over ``iterations`` timed iterations after one warm-up."""
+    runner, env = rsl_rl_runner(cfg)
     runner.learn(1)  # warm-up
     start = time.perf_counter()
     runner.learn(iterations)
     elapsed = time.perf_counter() - start
     env.envs.close()
-    return iterations * int(a.rollout_len) * env.num_envs / elapsed
+    return iterations * int(cfg.agent.rollout_len) * env.num_envs / elapsed
 
 
 PEER_RUNNERS = {"skrl": skrl_fps, "rsl_rl": rsl_rl_fps}

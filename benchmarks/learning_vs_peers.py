@@ -1,0 +1,135 @@
+"""Learning per frame: our trainer beside a stock PPO library on the same task, network and values.
+
+One after another, with the same seed, worlds, frame budget and PPO values (the experiment's,
+with ``--num-envs`` worlds and any extra ``key=value`` overrides for ours):
+  ours     ``roto_trl/train.py +exp=<exp>`` (its own run directory under ``--out``)
+  rsl_rl   rsl_rl's PPO (``benchmarks/peers.py``: separate actor and critic MLPs of our sizes)
+           on our Gymnasium interface (needs ``pip install -e '.[bench]'``)
+At each mark it prints the task's episode metric (bounces, rotations, ...) averaged over the
+training episodes that ended in the ``--window`` frames before the mark, and each trainer's
+frames/s (training only for ours: its ``fps`` column).
+
+    python benchmarks/learning_vs_peers.py --exp bounce_ppo --num-envs 256 --frames 1000000
+    python benchmarks/learning_vs_peers.py --exp bounce_ppo --marks 300k,1M agent.lr_schedule=kl_adaptive
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import subprocess
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+import torch
+from hydra import compose, initialize_config_dir
+
+from roto_trl.utils.resources import resource_dir
+
+TRAIN = Path(__file__).resolve().parent.parent / "roto_trl" / "train.py"
+
+
+def frames_arg(text: str) -> int:
+    """``300k``, ``1M``, ``2.5M`` or a plain number of frames."""
+    scale = {"k": 1_000, "m": 1_000_000}.get(text[-1].lower(), 1)
+    return int(float(text[:-1] if scale > 1 else text) * scale)
+
+
+def window_mean(episodes: list[tuple[int, float, float]], mark: int, window: int) -> float | None:
+    """Mean metric of the episodes ``(frames at end, metric, weight)`` that ended in
+    ``(mark - window, mark]``; None when none did."""
+    inside = [(value, weight) for end, value, weight in episodes if mark - window < end <= mark]
+    total = sum(weight for _, weight in inside)
+    return sum(value * weight for value, weight in inside) / total if total else None
+
+
+def ours(args, overrides: list[str], out: Path) -> tuple[list[tuple[int, float, float]], float]:
+    """Train with our trainer; its ended episodes (one entry per iteration: frames, the mean
+    metric of the episodes that ended then, their count) and mean training frames/s."""
+    run_dir = out / "ours"
+    command = [
+        sys.executable,
+        str(TRAIN),
+        f"+exp={args.exp}",
+        f"env.num_envs={args.num_envs}",
+        f"total_frames={args.frames}",
+        f"seed={args.seed}",
+        f"run_dir={run_dir}",
+        "logger=csv",
+        "progress=false",
+        *overrides,
+    ]
+    print("$", " ".join(command), flush=True)
+    subprocess.run(command, check=True)
+    with (run_dir / "train.csv").open(newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    metric = f"episode/{args.metric}"
+    episodes = [
+        (int(float(r["frames"])), float(r[metric]), float(r["episodes"]))
+        for r in rows
+        if r.get(metric) not in (None, "", "nan")
+    ]
+    fps = [float(r["fps"]) for r in rows]
+    return episodes, sum(fps) / len(fps)
+
+
+def rsl_rl(args, out: Path) -> tuple[list[tuple[int, float, float]], float]:
+    """Train rsl_rl's PPO for the same frames; its ended episodes and frames/s."""
+    from peers import rsl_rl_runner  # benchmarks/peers.py
+
+    with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
+        cfg = compose(
+            "train",
+            overrides=[f"+exp={args.exp}", f"env.num_envs={args.num_envs}", f"seed={args.seed}"],
+        )
+    torch.manual_seed(args.seed)
+    runner, env = rsl_rl_runner(cfg)
+    iterations = -(-args.frames // (int(cfg.agent.rollout_len) * args.num_envs))
+    start = time.perf_counter()
+    runner.learn(iterations)
+    elapsed = time.perf_counter() - start
+    env.envs.close()
+    return [(end, value, 1.0) for end, value in env.episodes], env.frames / elapsed
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--exp", default="bounce_ppo", help="experiment (conf/exp/)")
+    parser.add_argument("--num-envs", type=int, default=256, help="training worlds")
+    parser.add_argument("--frames", type=frames_arg, default=1_000_000, help="frame budget of each")
+    parser.add_argument("--marks", default="300k,1M", help="frame counts to compare at")
+    parser.add_argument("--window", type=frames_arg, default=49_152, help="episodes ending this close")
+    parser.add_argument("--metric", default="bounces", help="episode metric (bounces, rotations, ...)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=None, help="default runs/benchmarks/learning/<time>")
+    args, overrides = parser.parse_known_args()
+    bad = [a for a in overrides if "=" not in a or a.startswith("-")]
+    if bad:
+        parser.error(f"unrecognized arguments: {' '.join(bad)} (extra overrides are key=value)")
+    marks = [frames_arg(m) for m in args.marks.split(",")]
+    if max(marks) > args.frames:
+        parser.error(f"--marks {args.marks} go past --frames {args.frames:,}")
+    out = args.out or Path("runs/benchmarks/learning") / f"{datetime.now():%Y%m%d-%H%M%S}"
+    out.mkdir(parents=True, exist_ok=True)
+
+    results = {"ours": ours(args, overrides, out)}
+    try:
+        results["rsl_rl"] = rsl_rl(args, out)
+    except ImportError:
+        print("rsl_rl is not installed (pip install -e '.[bench]'): ours alone", flush=True)
+
+    print(f"\n{args.exp}, {args.num_envs} worlds, seed {args.seed}, {' '.join(overrides) or 'its values'}")
+    print(f"{args.metric} per training episode ended in the {args.window:,} frames before each mark")
+    header = f"{'trainer':<8}" + "".join(f"{m:>12,}" for m in marks) + f"{'frames/s':>10}"
+    print(header + "\n" + "-" * len(header))
+    for name, (episodes, fps) in results.items():
+        cells = [window_mean(episodes, m, args.window) for m in marks]
+        text = "".join(f"{'-':>12}" if c is None else f"{c:>12.2f}" for c in cells)
+        print(f"{name:<8}{text}{fps:>10,.0f}")
+    print(f"runs: {out}")
+
+
+if __name__ == "__main__":
+    main()
