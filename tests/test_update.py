@@ -161,6 +161,17 @@ def test_a_separate_critic_keeps_the_value_loss_out_of_the_policy_encoder():
     assert agent.common.module is agent.encoder
 
 
+@pytest.mark.parametrize("exp", ["find_fd", "bounce_ppo", "baoding_fd_mem"])
+def test_the_cpu_profile_gives_any_experiment_the_recipe_and_keeps_its_values(exp):
+    paper = compose_cfg([f"+exp={exp}"])
+    cpu = compose_cfg([f"+exp={exp}", "+profile=cpu"])
+    assert (cpu.env.num_envs, cpu.agent.shared_encoder, cpu.agent.lr_schedule) == (256, False, "kl_adaptive")
+    assert (paper.agent.shared_encoder, paper.agent.lr_schedule) == (True, "fixed")  # the paper's
+    for key in ("lr", "rollout_len", "minibatches", "epochs", "entropy_coeff"):
+        assert cpu.agent[key] == paper.agent[key]
+    assert cpu.ssl == paper.ssl
+
+
 def test_the_shared_agent_reads_the_policys_latent_for_its_value():
     torch.manual_seed(0)
     agent = Agent(("prop",), P, A)
