@@ -49,7 +49,7 @@ from roto_trl.trainers.builders import (
     make_rollout_buffer,
     make_train_env,
 )
-from roto_trl.trainers.ppo import ppo_update, store_rollout
+from roto_trl.trainers.ppo import minibatch_loss, ppo_update, store_rollout
 from roto_trl.utils.resources import resource_dir
 
 PEERS = ("skrl", "rsl_rl")
@@ -67,24 +67,22 @@ def sim_only(env, steps: int) -> float:
 
 
 def bare_update(cfg, agent, loss_fn, optimizer, params, aux, minibatch, aux_batch) -> float:
-    """Seconds of one iteration's updates (``epochs x minibatches`` steps) on fixed minibatches."""
+    """Seconds of one iteration's updates (``epochs x minibatches`` steps) on fixed minibatches:
+    the paper's Eq. 2 as training does it (``minibatch_loss``: one backward of L_PPO + c_aux L_aux,
+    then the PPO optimiser and, with an SSL objective, the auxiliary one and the target EMA)."""
     a = cfg.agent
     start = time.perf_counter()
     for _ in range(int(a.epochs) * int(a.minibatches)):
-        losses = loss_fn(agent.encode(minibatch.clone(False)))
-        total = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
+        data = None if aux_batch is None else aux_batch.clone(False)
+        total, _, _ = minibatch_loss(agent, loss_fn, minibatch.clone(False), aux, data)
         optimizer.zero_grad(set_to_none=True)
+        if aux is not None:
+            aux.zero_grad()
         total.backward()
         torch.nn.utils.clip_grad_norm_(params, a.max_grad_norm)
         optimizer.step()
-        if aux is not None and aux_batch is not None:
-            out = aux.loss(aux_batch.clone(False))
-            aux_total = aux.coeff * torch.stack([v for k, v in out.items() if k.startswith("loss_")]).sum()
-            aux.optimizer.zero_grad(set_to_none=True)
-            aux_total.backward()
-            aux.optimizer.step()
-            if aux.target_update is not None:
-                aux.target_update.step()
+        if aux is not None and data is not None:
+            aux.step()
     return time.perf_counter() - start
 
 
@@ -125,9 +123,8 @@ def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
     result["fps"] = frames / sum(phases.values())
     minibatch = agent.encode(buffer.sample()).detach().clone()
     aux_batch = None
-    if aux is not None and (not aux.dynamics or bool(aux.memory.valid_starts(aux.seq_len).any())):
-        memory, size = aux.memory, aux.batch
-        aux_batch = memory.sample_sequences(size, aux.seq_len) if aux.dynamics else memory.sample(size)
+    if aux is not None:  # one of the epoch's auxiliary minibatches (None while the memory is short)
+        aux_batch = next(aux.epoch(int(cfg.agent.minibatches)), None)
     updates = {"bare": make_optimizer(cfg, agent)}
     if fused:
         other = not bool(cfg.agent.fused_adam)
