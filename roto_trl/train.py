@@ -60,7 +60,7 @@ from roto_trl.trainers.ppo import ppo_update, rollout_stats, store_rollout
 from roto_trl.trainers.progress import TrainingProgress
 from roto_trl.trainers.run_dir import finished_reason, resume_config, rewind
 from roto_trl.trainers.run_lock import RunLock
-from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due
+from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due, evaluations_left
 from roto_trl.trainers.threads import job_threads
 from roto_trl.utils.paths import writable_dir
 from roto_trl.utils.resources import resource_dir
@@ -382,7 +382,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
                 checkpoint(LATEST, wall)
                 last_ckpt = time.perf_counter()
             postfix["fps"] = f"{stats['fps']:,.0f}"
-            evals_left = int(cfg.total_frames) // every_frames - frames // every_frames
+            evals_left = evaluations_left(frames, int(cfg.total_frames), every_frames)
             progress.iteration_done(frames, stats["fps"], evals_left, eval_clock.last)
             if stop.signum is not None and not done_training:
                 raise TrainingInterrupted(frames, stop.signum, run_dir)

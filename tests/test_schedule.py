@@ -9,7 +9,7 @@ from roto_trl.trainers.builders import agent_for_env, make_collector, make_eval_
 from roto_trl.trainers.checkpoint import load_checkpoint
 from roto_trl.trainers.evaluation import evaluate
 from roto_trl.trainers.progress import TrainingProgress, format_duration, time_to_budget
-from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due
+from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due, evaluations_left
 
 
 def test_evaluation_falls_on_the_first_iteration_past_each_multiple():
@@ -18,6 +18,8 @@ def test_evaluation_falls_on_the_first_iteration_past_each_multiple():
     steps = [(0, 3000), (3000, 6000), (6000, 9000), (9000, 12000)]
     assert [evaluation_due(a, b, 5000) for a, b in steps] == [False, True, False, True]
     assert evaluation_due(0, 5000, 5000) and not evaluation_due(5000, 9999, 5000)
+    # the crossings still to come: from 3000 to a 12000 budget, 5000 and 10000
+    assert evaluations_left(3000, 12000, 5000) == 2 == sum(evaluation_due(a, b, 5000) for a, b in steps[1:])
 
 
 def test_every_frames_is_read_and_the_old_interval_is_refused_with_its_equivalent():

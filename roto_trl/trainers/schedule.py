@@ -42,6 +42,11 @@ def evaluation_due(frames_before: int, frames_after: int, every_frames: int) -> 
     return frames_after // every_frames > frames_before // every_frames
 
 
+def evaluations_left(frames: int, total_frames: int, every_frames: int) -> int:
+    """Scheduled evaluations (``evaluation_due``) between ``frames`` and ``total_frames``."""
+    return total_frames // every_frames - frames // every_frames
+
+
 class EvalClock:
     """Seconds spent evaluating during a run, to report evaluation's share of the wall time.
 
