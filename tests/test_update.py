@@ -165,9 +165,10 @@ def test_a_separate_critic_keeps_the_value_loss_out_of_the_policy_encoder():
 def test_the_cpu_profile_gives_any_experiment_the_recipe_and_keeps_its_values(exp):
     paper = compose_cfg([f"+exp={exp}"])
     cpu = compose_cfg([f"+exp={exp}", "+profile=cpu"])
-    assert (cpu.env.num_envs, cpu.agent.shared_encoder, cpu.agent.lr_schedule) == (256, False, "kl_adaptive")
+    recipe = (cpu.env.num_envs, cpu.agent.shared_encoder, cpu.agent.lr_schedule, cpu.agent.minibatches)
+    assert recipe == (256, False, "kl_adaptive", 8)
     assert (paper.agent.shared_encoder, paper.agent.lr_schedule) == (True, "fixed")  # the paper's
-    for key in ("lr", "rollout_len", "minibatches", "epochs", "entropy_coeff"):
+    for key in ("lr", "rollout_len", "epochs", "entropy_coeff"):
         assert cpu.agent[key] == paper.agent[key]
     assert cpu.ssl == paper.ssl
 
