@@ -38,6 +38,7 @@ from roto_trl.analysis.runs import (
     physical_metrics,
     run_csv,
 )
+from roto_trl.analysis.stability import run_stability, stability_markdown
 from roto_trl.analysis.table import (
     load_reference,
     parse_frames,
@@ -301,6 +302,17 @@ def cmd_table(runs: list[Run], out: Path, args) -> list[Path]:
     return [out / "table.md", write_table_csv(rows, out / "table.csv", args.reference)]
 
 
+def cmd_stability(runs: list[Run], out: Path, args) -> list[Path]:
+    """Per run: best and final evaluation of the task's metric, median KL and clip fraction."""
+    rows = [run_stability(run) for run in runs]
+    markdown = stability_markdown(rows)
+    print(markdown)
+    (out / "stability.md").write_text(markdown)
+    header = [*vars(rows[0]), "held"]
+    csv_rows = [[*vars(row).values(), row.held] for row in rows]
+    return [out / "stability.md", write_csv(out / "stability.csv", header, csv_rows)]
+
+
 COMMANDS = {
     "curves": cmd_curves,
     "mi": cmd_mi,
@@ -308,6 +320,7 @@ COMMANDS = {
     "tactile": cmd_tactile,
     "aux-memory": cmd_aux_memory,
     "table": cmd_table,
+    "stability": cmd_stability,
 }
 
 

@@ -142,3 +142,26 @@ def test_table_rejects_bad_input_with_one_line(tmp_path):
     (tmp_path / "runs" / "bounce_fd-s1" / "eval.csv").unlink()
     with pytest.raises(SystemExit, match=r"bounce_fd-s1 has no eval\.csv"):
         analyse.main(["table", str(tmp_path / "runs" / "*"), "--out", str(tmp_path / "t")])
+
+
+def test_stability_rows_by_hand(tmp_path, capsys):
+    run = tmp_path / "bounce_ppo-s3"
+    run.mkdir()
+    (run / "config.yaml").write_text("exp_name: bounce_ppo\nseed: 3\nenv:\n  task: bounce\n")
+    (run / "eval.csv").write_text("frames,return_mean,bounces_per_10s\n0,0.1,0\n100,50,10\n200,40,7\n")
+    # the per-iteration medians: KL 0.01, 0.03, (empty), 0.02 -> 0.02; clip 0.1, 0.3, 0.2 -> 0.2
+    (run / "train.csv").write_text(
+        "frames,fps,kl_k3_median,clip_fraction_median\n50,900,0.01,0.1\n100,1000,0.03,0.3\n"
+        "150,1100,,\n200,1200,0.02,0.2\n"
+    )
+    (run / "eval.json").write_text('{"episodes": 100, "physical": {"bounces_per_10s": 9.5}}')
+    out = tmp_path / "stability"
+    analyse.main(["stability", str(run), "--out", str(out)])
+    with (out / "stability.csv").open(newline="") as handle:
+        (row,) = list(csv.DictReader(handle))
+    assert (row["best"], row["best_frames"], row["final"]) == ("10.0", "100", "7.0")
+    assert float(row["held"]) == pytest.approx(0.7)  # under 0.8 of the best: flagged
+    assert (float(row["kl_median"]), float(row["clip_median"])) == (0.02, 0.2)
+    assert float(row["frames_per_s"]) == 1050
+    assert (row["checkpoint_value"], row["checkpoint_episodes"]) == ("9.5", "100")
+    assert "0.70 (fell back)" in capsys.readouterr().out
