@@ -229,3 +229,5 @@ def test_the_forward_model_learns_from_the_action_the_env_applied():
     sampled = rollout["action"]
     assert bool((sampled.abs() > 1).any())
     assert torch.equal(aux.memory.stored()["action"][0], sampled.clamp(-1.0, 1.0))  # the env's clip
+    # the auxiliary optimiser follows agent.fused_adam, as the PPO optimiser does
+    assert aux.optimizer.defaults["fused"] and make_optimizer(cfg, agent).defaults["fused"]

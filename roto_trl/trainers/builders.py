@@ -224,4 +224,5 @@ def make_aux_update(cfg, agent: Agent, env: TransformedEnv) -> AuxiliaryUpdate |
         coeff=float(ssl.coeff),
         seq_len=int(ssl.get("seq_len", 1)),
         tau=float(ssl.get("tau", 0.01)),
+        fused=bool(cfg.agent.get("fused_adam", True)),
     )
