@@ -11,6 +11,10 @@ frames/s (training only for ours: its ``fps`` column).
 
     python benchmarks/learning_vs_peers.py --exp bounce_ppo --num-envs 256 --frames 1000000
     python benchmarks/learning_vs_peers.py --exp bounce_ppo --marks 300k,1M agent.lr_schedule=kl_adaptive
+    python benchmarks/learning_vs_peers.py --ours-run runs/bounce_ppo/<run> --frames 2000000 --marks 1M,2M
+
+``--ours-run`` reads a finished run of ours instead of training one (its experiment, seed and
+worlds are taken from its config, so the peer trains on exactly those).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from pathlib import Path
 
 import torch
 from hydra import compose, initialize_config_dir
+from omegaconf import OmegaConf
 
 from roto_trl.utils.resources import resource_dir
 
@@ -37,6 +42,11 @@ def frames_arg(text: str) -> int:
     return int(float(text[:-1] if scale > 1 else text) * scale)
 
 
+def threads_overrides(threads: int | None) -> list[str]:
+    """The overrides that give torch and the physics ``threads`` threads (none: the defaults)."""
+    return [f"torch_threads={threads}", f"+env.overrides.num_threads={threads}"] if threads else []
+
+
 def window_mean(episodes: list[tuple[int, float, float]], mark: int, window: int) -> float | None:
     """Mean metric of the episodes ``(frames at end, metric, weight)`` that ended in
     ``(mark - window, mark]``; None when none did."""
@@ -46,8 +56,11 @@ def window_mean(episodes: list[tuple[int, float, float]], mark: int, window: int
 
 
 def ours(args, overrides: list[str], out: Path) -> tuple[list[tuple[int, float, float]], float]:
-    """Train with our trainer; its ended episodes (one entry per iteration: frames, the mean
-    metric of the episodes that ended then, their count) and mean training frames/s."""
+    """Train with our trainer (or read ``--ours-run``); its ended episodes (one entry per
+    iteration: frames, the mean metric of the episodes that ended then, their count) and mean
+    training frames/s."""
+    if args.ours_run is not None:
+        return ended_episodes(args.ours_run, args.metric)
     run_dir = out / "ours"
     command = [
         sys.executable,
@@ -59,13 +72,23 @@ def ours(args, overrides: list[str], out: Path) -> tuple[list[tuple[int, float, 
         f"run_dir={run_dir}",
         "logger=csv",
         "progress=false",
+        *(
+            [f"torch_threads={args.threads}", f"+env.overrides.num_threads={args.threads}"]
+            if args.threads
+            else []
+        ),
         *overrides,
     ]
     print("$", " ".join(command), flush=True)
     subprocess.run(command, check=True)
+    return ended_episodes(run_dir, args.metric)
+
+
+def ended_episodes(run_dir: Path, metric_name: str) -> tuple[list[tuple[int, float, float]], float]:
+    """A run's ended episodes and mean training frames/s, from its ``train.csv``."""
     with (run_dir / "train.csv").open(newline="") as handle:
         rows = list(csv.DictReader(handle))
-    metric = f"episode/{args.metric}"
+    metric = f"episode/{metric_name}"
     episodes = [
         (int(float(r["frames"])), float(r[metric]), float(r["episodes"]))
         for r in rows
@@ -82,8 +105,15 @@ def rsl_rl(args, out: Path) -> tuple[list[tuple[int, float, float]], float]:
     with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
         cfg = compose(
             "train",
-            overrides=[f"+exp={args.exp}", f"env.num_envs={args.num_envs}", f"seed={args.seed}"],
+            overrides=[
+                f"+exp={args.exp}",
+                f"env.num_envs={args.num_envs}",
+                f"seed={args.seed}",
+                *threads_overrides(args.threads)[1:],
+            ],
         )
+    if args.threads:
+        torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     runner, env = rsl_rl_runner(cfg)
     iterations = -(-args.frames // (int(cfg.agent.rollout_len) * args.num_envs))
@@ -104,7 +134,16 @@ def main() -> None:
     parser.add_argument("--metric", default="bounces", help="episode metric (bounces, rotations, ...)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=None, help="default runs/benchmarks/learning/<time>")
+    parser.add_argument("--threads", type=int, default=None, help="torch and physics threads of each")
+    parser.add_argument("--ours-run", type=Path, default=None, help="a finished run of ours to compare")
     args, overrides = parser.parse_known_args()
+    if args.ours_run is not None:
+        if not (args.ours_run / "train.csv").is_file():
+            parser.error(f"--ours-run {args.ours_run} has no train.csv; give a run directory of train.py")
+        if overrides:
+            parser.error("--ours-run reads a finished run: its overrides are in its config.yaml, give none")
+        run_cfg = OmegaConf.load(args.ours_run / "config.yaml")
+        args.exp, args.seed, args.num_envs = run_cfg.exp_name, int(run_cfg.seed), int(run_cfg.env.num_envs)
     bad = [a for a in overrides if "=" not in a or a.startswith("-")]
     if bad:
         parser.error(f"unrecognized arguments: {' '.join(bad)} (extra overrides are key=value)")

@@ -20,3 +20,33 @@ def test_train_throughput_measures_an_ssl_experiment():
     ours, sim, update, limit, ratio = row.split()[2:7]
     assert all(float(v.replace(",", "")) > 0 for v in (ours, sim, update, limit))
     assert re.fullmatch(r"\d+\.\d\d", ratio)
+
+
+def test_learning_vs_peers_trains_ours_then_reads_a_finished_run(tmp_path):
+    from helpers import TINY
+
+    tiny = [o for o in TINY if not o.startswith(("total_frames=", "env.num_envs=", "torch_threads="))]
+    common = [sys.executable, str(BENCHMARKS / "learning_vs_peers.py"), "--frames", "512", "--threads", "1"]
+    common += ["--marks", "256,512", "--window", "512"]
+    trained = subprocess.run(
+        [*common, "--exp", "bounce_ppo", "--num-envs", "8", "--out", str(tmp_path), *tiny],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert trained.returncode == 0, trained.stderr[-2000:]
+    assert (tmp_path / "ours" / "train.csv").is_file()
+    again = subprocess.run(
+        [*common, "--ours-run", str(tmp_path / "ours"), "--out", str(tmp_path / "again")],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert again.returncode == 0, again.stderr[-2000:]
+    rows = [line for line in again.stdout.splitlines() if line.startswith("ours")]
+    assert rows == [line for line in trained.stdout.splitlines() if line.startswith("ours")]
+    assert "bounce_ppo, 8 worlds, seed 0" in again.stdout  # the run's own config
+    refused = subprocess.run(
+        [*common, "--ours-run", str(tmp_path / "ours"), "agent.lr=1e-3"], capture_output=True, text=True
+    )
+    assert refused.returncode == 2 and "--ours-run reads a finished run" in refused.stderr
