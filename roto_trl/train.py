@@ -269,11 +269,6 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     best_eval: dict[str, float] | None = None
     if resumed is not None:
         agent.load_state_dict(resumed["agent"])
-        if len(resumed["optimizer"]["param_groups"]) != len(optimizer.param_groups):
-            raise ValueError(
-                f"{run_dir} was checkpointed by an older version whose optimiser had one parameter group "
-                "(now policy and critic): it cannot be resumed; start a new run"
-            )
         optimizer.load_state_dict(resumed["optimizer"])
         frames, iteration = int(resumed["frames"]), int(resumed["iteration"])
         best, wall_before = float(resumed["best_eval"]), float(resumed.get("wall_time", 0.0))

@@ -182,20 +182,6 @@ def test_resume_leaves_a_finished_run_alone_and_takes_only_a_larger_budget(tmp_p
     assert summary["frames"] == 384 and load_checkpoint(run)["config"]["total_frames"] == 384
 
 
-def test_a_checkpoint_of_the_one_group_optimiser_is_refused_with_one_line(tmp_path):
-    run = tmp_path / "run"
-    train(compose_cfg(tiny(run)))
-    state = load_checkpoint(run)
-    groups = state["optimizer"]["param_groups"]
-    groups[0]["params"] += groups.pop(1)["params"]  # what versions before the policy/critic split saved
-    save_checkpoint(run / "checkpoints" / "latest.pt", state)
-    done = subprocess.run(
-        [*TRAIN, f"resume={run}", "total_frames=512"], capture_output=True, text=True, timeout=120
-    )
-    assert done.returncode == 2 and "Traceback" not in done.stderr
-    assert "older version whose optimiser had one parameter group" in done.stderr
-
-
 # ---------------------------------------------------------------------------- stopping a run safely
 
 

@@ -213,21 +213,6 @@ def test_lr_schedule_config():
         make_lr_schedule(compose_cfg(["+exp=bounce_ppo", "agent.lr_schedule=cosine"]), optimizer)
 
 
-@pytest.mark.parametrize("shared", [True, False])
-def test_the_kl_rule_moves_the_policys_rate_and_the_critic_keeps_its_own(shared):
-    cfg = compose_cfg(["+exp=bounce_ppo", "agent.lr_schedule=kl_adaptive", f"agent.shared_encoder={shared}"])
-    agent = Agent(("prop",), P, A, shared_encoder=shared)
-    optimizer = make_optimizer(cfg, agent)
-    policy, critic = optimizer.param_groups
-    critic_modules = (agent.value_head,) if shared else (agent.value_head, agent.value_encoder)
-    assert (policy["name"], critic["name"]) == ("policy", "critic")
-    assert {id(p) for p in critic["params"]} == {id(p) for m in critic_modules for p in m.parameters()}
-    assert {id(p) for p in agent.encoder.parameters()} <= {id(p) for p in policy["params"]}
-    schedule = make_lr_schedule(cfg, optimizer)
-    assert schedule.step(0.05) == pytest.approx(2.14e-4)  # 3.21e-4 / 1.5
-    assert (policy["lr"], critic["lr"]) == (pytest.approx(2.14e-4), 3.21e-4)
-
-
 def test_the_forward_model_learns_from_the_action_the_env_applied():
     from roto_trl.trainers.builders import agent_for_env, make_aux_update, make_collector, make_train_env
 

@@ -159,25 +159,14 @@ def make_rollout_buffer(cfg) -> TensorDictReplayBuffer:
 
 def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     """The PPO optimiser: one Adam over encoder + policy + value (the SSL gradient reaches the
-    encoder through the same backward, see ``roto_trl.trainers.auxiliary``), in two parameter
-    groups: ``policy`` (the encoder and the policy head) and ``critic`` (the value head and, with
-    ``agent.shared_encoder=false``, the critic's encoder). Both start at ``agent.lr``; the
-    KL-adaptive rate moves only ``policy``'s, because the KL measures the policy's step: adapted
-    with it, a separate critic learnt at the 3e-5 the policy needed and explained a quarter of
-    the returns' variance by 1 M Bounce frames, against half at the fixed 3.2e-4.
+    encoder through the same backward, see ``roto_trl.trainers.auxiliary``).
 
     ``agent.fused_adam`` (default true) uses PyTorch's fused Adam, one kernel over all parameters:
     on the CPU its step took 3.5-4 ms against 9-13 ms for the default per-parameter loop
     (``benchmarks/train_throughput.py --fused``); same maths, rounding aside.
     """
     a = _cfg(cfg).agent
-    critic = [*agent.value_head.parameters()]
-    if not agent.shared_encoder:
-        critic += [*agent.value_encoder.parameters()]
-    critic_ids = {id(p) for p in critic}
-    policy = [p for p in agent.parameters() if id(p) not in critic_ids]
-    groups = [{"params": policy, "name": "policy"}, {"params": critic, "name": "critic"}]
-    return torch.optim.Adam(groups, lr=float(a.lr), fused=bool(a.get("fused_adam", True)))
+    return torch.optim.Adam(agent.parameters(), lr=float(a.lr), fused=bool(a.get("fused_adam", True)))
 
 
 LR_SCHEDULES = ("fixed", "kl_adaptive")

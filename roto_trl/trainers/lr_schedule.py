@@ -39,9 +39,7 @@ def kl_adaptive_lr(
 
 
 class KLAdaptiveLR:
-    """Sets the learning rate of ``optimizer``'s parameter groups with :func:`kl_adaptive_lr`,
-    except a group named ``critic`` (``make_optimizer``): the KL measures the policy's step, and
-    the critic keeps its rate.
+    """Sets ``optimizer``'s learning rate with :func:`kl_adaptive_lr`.
 
     The rate lives only in the optimiser's parameter groups, so the optimiser's state dict (in
     every checkpoint) saves it and loading that state dict restores it.
@@ -54,9 +52,7 @@ class KLAdaptiveLR:
         self.kl_target = float(kl_target)
 
     def step(self, kl: float) -> float:
-        """Update the learning rate from an epoch's mean approximate KL; returns the policy's new
-        rate (the first adapted group's)."""
-        adapted = [g for g in self.optimizer.param_groups if g.get("name") != "critic"]
-        for group in adapted:
+        """Update the learning rate from an epoch's mean approximate KL; returns the new rate."""
+        for group in self.optimizer.param_groups:
             group["lr"] = kl_adaptive_lr(group["lr"], kl, self.kl_target)
-        return adapted[0]["lr"]
+        return self.optimizer.param_groups[0]["lr"]
