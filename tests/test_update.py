@@ -231,3 +231,10 @@ def test_the_forward_model_learns_from_the_action_the_env_applied():
     assert torch.equal(aux.memory.stored()["action"][0], sampled.clamp(-1.0, 1.0))  # the env's clip
     # the auxiliary optimiser follows agent.fused_adam, as the PPO optimiser does
     assert aux.optimizer.defaults["fused"] and make_optimizer(cfg, agent).defaults["fused"]
+
+
+def test_the_initial_log_std_is_configurable_and_the_papers_is_zero():
+    assert compose_cfg(["+exp=bounce_ppo"]).agent.init_log_std == 0.0
+    agent = Agent(("prop",), P, A, init_log_std=-1.0)
+    _, scale = agent.policy_head(torch.zeros(3, agent.encoder.latent_dim))
+    torch.testing.assert_close(scale, torch.full((3, A), math.exp(-1.0)))

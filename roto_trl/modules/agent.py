@@ -44,16 +44,22 @@ class Agent(nn.Module):
         shared_encoder: True (the paper): one encoder feeds the policy and the value head.
             False: the critic has its own encoder of the same size, trained by the value loss
             only; the policy's encoder is the one the SSL objectives train (``common``).
+        init_log_std: the policy's initial log standard deviation (0: std 1, the paper's).
     """
 
     def __init__(
-        self, obs_keys: tuple[str, ...], obs_dim: int, n_actions: int, shared_encoder: bool = True
+        self,
+        obs_keys: tuple[str, ...],
+        obs_dim: int,
+        n_actions: int,
+        shared_encoder: bool = True,
+        init_log_std: float = 0.0,
     ) -> None:
         super().__init__()
         self.obs_keys = tuple(obs_keys)
         self.n_actions = int(n_actions)
         self.encoder = Encoder(obs_dim)
-        self.policy_head = PolicyHead(self.encoder.latent_dim, n_actions)
+        self.policy_head = PolicyHead(self.encoder.latent_dim, n_actions, init_log_std)
         self.value_head = ValueHead(self.encoder.latent_dim)
         self.value_norm = ValueNormalizer()
         # observation entries -> z: the encoder as the self-supervised losses take it
