@@ -97,10 +97,20 @@ class AuxMemory:
         self, count: int, n: int = 1, generator: torch.Generator | None = None
     ) -> Iterator[TensorDictBase]:
         """One pass over the memory: ``count`` disjoint minibatches (fewer when fewer than
-        ``count`` steps or runs are stored), in random order, together covering every stored
-        step (n = 1: minibatches ``[b]``) or every run of n steps inside one episode (``[b, n]``).
+        ``count`` steps or runs are stored), in random order: every stored step once (n = 1:
+        minibatches ``[b]``), or runs of n steps inside one episode (``[b, n]``) that start on a
+        grid of stride n with a random offset, so that no step is in two runs of a pass.
+
+        Why the grid: with every start, each step would be encoded n times per pass and an
+        epoch of FD/TFD (n = 10) cost ten passes over the memory against PPO's one; over the
+        passes every run inside an episode still comes up.
         """
-        starts = self.valid_starts(n).nonzero()  # [S, 3]
+        valid = self.valid_starts(n)
+        if n > 1:
+            offset = int(torch.randint(n, (1,), generator=generator))
+            on_grid = torch.arange(valid.shape[-1], device=valid.device) % n == offset
+            valid = valid & on_grid
+        starts = valid.nonzero()  # [S, 3]
         if starts.shape[0] == 0:
             return
         order = torch.randperm(starts.shape[0], generator=generator).to(starts.device)

@@ -6,7 +6,7 @@ it (lr, gradient-norm clip); this class's optimiser steps only the auxiliary net
 forward model, projector) with lr_aux, no clipping. For FD/TFD the target encoder then moves
 towards the encoder (TorchRL's ``SoftUpdate``, tau 0.01). Each epoch the auxiliary memory is
 split into as many disjoint minibatches as PPO's rollout (single steps for TR/FR, runs of n
-steps for FD/TFD).
+steps on a stride-n grid for FD/TFD, see ``AuxMemory.minibatches``).
 """
 
 from __future__ import annotations
