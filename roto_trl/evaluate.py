@@ -7,7 +7,9 @@ Keys (``key=value``): ``run`` (required, a run directory of ``train.py``), ``che
 (``best``, ``latest`` or a ``.pt`` path of a run of the same task), ``episodes`` (default: the
 run's ``eval.num_envs``; one world per episode), ``seed`` (default: the seed of the run's own
 evaluations, so ``episodes=<eval.num_envs>`` replays them), ``video`` (``true``: an mp4 of the
-first episode in ``<run>/videos/``), ``out`` (default ``<run>/eval.json``).
+first episode in ``<run>/videos/``), ``out`` (default ``<run>/eval.json``), ``policy``
+(``deterministic``, the default: the policy's mean action, as the training evaluations;
+``stochastic``: samples of its Gaussian, seeded, as the agent acts in training).
 
 Physical metrics (per task, :meth:`~roto_trl.envs.robot_env.RobotTaskEnv.physical_metrics`):
 Find, seconds to reach each tolerance and the fraction of episodes that reached it; Bounce,
@@ -30,11 +32,22 @@ from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.utils.cli import check_int, parse_key_values
 from roto_trl.utils.paths import writable_file
 
-DEFAULTS = {"run": "???", "checkpoint": "best", "episodes": None, "seed": None, "video": False, "out": None}
+DEFAULTS = {
+    "run": "???",
+    "checkpoint": "best",
+    "episodes": None,
+    "seed": None,
+    "video": False,
+    "out": None,
+    "policy": "deterministic",
+}
+POLICIES = ("deterministic", "stochastic")
 
 
 def print_result(result: dict[str, Any]) -> None:
-    print(f"{result['exp_name']} ({result['task']}), {result['trained_frames']:,} training frames")
+    policy = result.get("policy", "deterministic")
+    frames = result["trained_frames"]
+    print(f"{result['exp_name']} ({result['task']}), {frames:,} training frames, {policy} policy")
     episodes = result["episodes"]
     print(f"  {'return':<22} {result['return_mean']:.3f} ± {result['return_std']:.3f} ({episodes} episodes)")
     for name, value in result["physical"].items():
@@ -49,6 +62,8 @@ def main(argv: list[str] | None = None) -> Path:
     check_int("evaluate", cfg, "seed", 0, optional=True)
     if not isinstance(cfg.video, bool):
         raise SystemExit(f"evaluate: video must be true or false, got {cfg.video!r}")
+    if cfg.policy not in POLICIES:
+        raise SystemExit(f"evaluate: policy must be one of {list(POLICIES)}, got {cfg.policy!r}")
     try:
         out = Path(str(cfg.out)) if cfg.out is not None else Path(str(cfg.run)) / "eval.json"
         if cfg.out is not None or out.parent.is_dir():  # before the evaluation, not after it
@@ -60,6 +75,7 @@ def main(argv: list[str] | None = None) -> Path:
             cfg.seed,
             bool(cfg.video),
             None if cfg.out is None else Path(str(cfg.out)),
+            cfg.policy == "stochastic",
         )
     except (ValueError, RuntimeError, FileNotFoundError) as err:  # bad input: one line, no traceback
         raise SystemExit(f"evaluate: {err}") from None

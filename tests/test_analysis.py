@@ -125,6 +125,20 @@ def test_evaluate_is_deterministic_and_writes_video(runs, tmp_path):
     assert Path(b["video"]).stat().st_size > 1000
 
 
+def test_evaluate_can_act_with_the_policys_seeded_samples(runs, tmp_path):
+    def result(name, *extra):
+        args = [f"run={runs['ppo0']}", "episodes=4", "seed=3", f"out={tmp_path / name}", *extra]
+        return json.loads(evaluate.main(args).read_text())
+
+    mean_action = result("d.json")
+    sampled, again = result("s1.json", "policy=stochastic"), result("s2.json", "policy=stochastic")
+    assert (mean_action["policy"], sampled["policy"]) == ("deterministic", "stochastic")
+    assert sampled["return_mean"] == again["return_mean"]  # seeded
+    assert sampled["return_mean"] != mean_action["return_mean"]  # a std-1 policy's samples differ
+    with pytest.raises(SystemExit, match=r"policy must be one of \['deterministic', 'stochastic'\]"):
+        evaluate.main([f"run={runs['ppo0']}", "policy=random"])
+
+
 def test_evaluate_rejects_missing_and_foreign_checkpoints(runs, tmp_path):
     with pytest.raises(SystemExit, match=r"no config\.yaml"):
         evaluate.main([f"run={tmp_path}"])

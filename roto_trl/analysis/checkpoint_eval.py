@@ -50,9 +50,16 @@ def load_run(run_dir: Path, checkpoint: str = "best") -> tuple[DictConfig, dict[
 
 
 def evaluate_checkpoint(
-    cfg: DictConfig, state: dict[str, Any], episodes: int, seed: int, video: bool = False
+    cfg: DictConfig,
+    state: dict[str, Any],
+    episodes: int,
+    seed: int,
+    video: bool = False,
+    stochastic: bool = False,
 ) -> tuple[dict[str, Any], list]:
-    """Evaluate a checkpoint's deterministic policy on ``episodes`` fresh worlds of its task.
+    """Evaluate a checkpoint's policy on ``episodes`` fresh worlds of its task: its mean action
+    (deterministic, the default and the training evaluations'), or with ``stochastic`` samples
+    of its Gaussian as in training.
 
     Returns the result (return mean/std, mean episode length, episode metric means, physical
     metrics) and, with ``video``, the RGB frames of the first episode.
@@ -63,7 +70,8 @@ def evaluate_checkpoint(
     try:
         agent = agent_from_checkpoint(state, env)
         base = env.base_env
-        result = run_episodes(env, agent, seed, render=(lambda: base.render(0)) if video else None)
+        render = (lambda: base.render(0)) if video else None
+        result = run_episodes(env, agent, seed, render=render, stochastic=stochastic)
         physical = base.physical_metrics(result.final)
     finally:
         env.close()
@@ -73,6 +81,7 @@ def evaluate_checkpoint(
         "trained_frames": int(state["frames"]),
         "episodes": int(episodes),
         "seed": int(seed),
+        "policy": "stochastic" if stochastic else "deterministic",
         "return_mean": float(result.returns.mean()),
         "return_std": float(result.returns.std(correction=0)),
         "episode_steps_mean": float(result.lengths.double().mean()),
@@ -89,6 +98,7 @@ def evaluate_run(
     seed: int | None = None,
     video: bool = False,
     out: Path | None = None,
+    stochastic: bool = False,
 ) -> Path:
     """Evaluate one checkpoint of a run, write ``eval.json`` (and the video), refresh ``index.md``."""
     run_dir = Path(run_dir)
@@ -97,7 +107,7 @@ def evaluate_run(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     seed = eval_seed(cfg) if seed is None else int(seed)
-    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video)
+    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video, stochastic)
     summary = {"run_dir": str(run_dir.resolve()), "checkpoint": str(path.resolve()), **summary}
     if video:
         video_path = run_dir / "videos" / f"eval-{path.stem}-s{seed}.mp4"

@@ -40,6 +40,7 @@ def run_episodes(
     render: Callable[[], np.ndarray] | None = None,
     on_step: Callable[[TensorDictBase, TensorDictBase, torch.Tensor], None] | None = None,
     max_steps: int | None = None,
+    stochastic: bool = False,
 ) -> Episodes:
     """Run one whole episode in every world of ``env`` (physically reset, seeded with ``seed``).
 
@@ -53,6 +54,8 @@ def run_episodes(
             action answers), the policy's output ``[E]`` (encoder inputs, ``z``, ``action``) and
             ``live`` ``[E]`` bool (the world is still in its first episode).
         max_steps: stop after this many steps (default: the episode length).
+        stochastic: act with samples of the policy's Gaussian (clipped by the env, as in
+            training) instead of its mean.
     """
     env.set_seed(seed)
     td = env.reset()
@@ -69,7 +72,11 @@ def run_episodes(
         if max_steps is None
         else min(max_steps, env.base_env.max_episode_steps)
     )
-    with set_exploration_type(ExplorationType.DETERMINISTIC):
+    exploration = ExplorationType.RANDOM if stochastic else ExplorationType.DETERMINISTIC
+    # the stochastic policy's samples come from ``seed`` and leave the caller's RNG where it was
+    with torch.random.fork_rng(enabled=stochastic), set_exploration_type(exploration):
+        if stochastic:
+            torch.manual_seed(seed)
         for _ in range(steps):
             live = ~finished
             decision = agent.policy(td.select(*keys).clone())
