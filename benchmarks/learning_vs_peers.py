@@ -31,15 +31,16 @@ import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from roto_trl.analysis.table import parse_frames
 from roto_trl.utils.resources import resource_dir
 
 TRAIN = Path(__file__).resolve().parent.parent / "roto_trl" / "train.py"
 
 
 def frames_arg(text: str) -> int:
-    """``300k``, ``1M``, ``2.5M`` or a plain number of frames."""
-    scale = {"k": 1_000, "m": 1_000_000}.get(text[-1].lower(), 1)
-    return int(float(text[:-1] if scale > 1 else text) * scale)
+    """``300k``, ``1M``, ``2.5M`` or a plain number of frames (the results table's parser)."""
+    (frames,) = parse_frames(text)
+    return frames
 
 
 def threads_overrides(threads: int | None) -> list[str]:
@@ -147,7 +148,7 @@ def main() -> None:
     bad = [a for a in overrides if "=" not in a or a.startswith("-")]
     if bad:
         parser.error(f"unrecognized arguments: {' '.join(bad)} (extra overrides are key=value)")
-    marks = [frames_arg(m) for m in args.marks.split(",")]
+    marks = parse_frames(args.marks)
     if max(marks) > args.frames:
         parser.error(f"--marks {args.marks} go past --frames {args.frames:,}")
     out = args.out or Path("runs/benchmarks/learning") / f"{datetime.now():%Y%m%d-%H%M%S}"

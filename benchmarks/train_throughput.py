@@ -49,7 +49,7 @@ from roto_trl.trainers.builders import (
     make_rollout_buffer,
     make_train_env,
 )
-from roto_trl.trainers.ppo import minibatch_loss, ppo_update, store_rollout
+from roto_trl.trainers.ppo import minibatch_step, ppo_update, store_rollout
 from roto_trl.utils.resources import resource_dir
 
 PEERS = ("skrl", "rsl_rl")
@@ -68,21 +68,13 @@ def sim_only(env, steps: int) -> float:
 
 def bare_update(cfg, agent, loss_fn, optimizer, params, aux, minibatch, aux_batch) -> float:
     """Seconds of one iteration's updates (``epochs x minibatches`` steps) on fixed minibatches:
-    the paper's Eq. 2 as training does it (``minibatch_loss``: one backward of L_PPO + c_aux L_aux,
+    the paper's Eq. 2 as training does it (``minibatch_step``: one backward of L_PPO + c_aux L_aux,
     then the PPO optimiser and, with an SSL objective, the auxiliary one and the target EMA)."""
     a = cfg.agent
     start = time.perf_counter()
     for _ in range(int(a.epochs) * int(a.minibatches)):
         data = None if aux_batch is None else aux_batch.clone(False)
-        total, _, _ = minibatch_loss(agent, loss_fn, minibatch.clone(False), aux, data)
-        optimizer.zero_grad(set_to_none=True)
-        if aux is not None:
-            aux.zero_grad()
-        total.backward()
-        torch.nn.utils.clip_grad_norm_(params, a.max_grad_norm)
-        optimizer.step()
-        if aux is not None and data is not None:
-            aux.step()
+        minibatch_step(agent, loss_fn, optimizer, params, a.max_grad_norm, minibatch.clone(False), aux, data)
     return time.perf_counter() - start
 
 

@@ -77,6 +77,29 @@ def minibatch_loss(
     return total, losses, aux_stats
 
 
+def minibatch_step(agent, loss_fn, optimizer, params, max_grad_norm, minibatch, aux=None, aux_data=None):
+    """One update on ``minibatch`` (and ``aux_data``, an auxiliary minibatch or None): the backward
+    of ``minibatch_loss``, the gradient norm of ``params`` clipped to ``max_grad_norm``, the PPO
+    optimiser's step and, with auxiliary data, the auxiliary one's.
+
+    Returns ``ClipPPOLoss``'s output, the gradient norm before clipping and the auxiliary numbers
+    (None without auxiliary data); a ``NonFiniteError`` for a non-finite loss or gradient.
+    """
+    total, losses, aux_stats = minibatch_loss(agent, loss_fn, minibatch, aux, aux_data)
+    optimizer.zero_grad(set_to_none=True)
+    if aux is not None:
+        aux.zero_grad()
+    total.backward()
+    grad_norm = torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
+    if not bool(torch.isfinite(total) and torch.isfinite(grad_norm)):
+        bad = [k for k, v in losses.items() if k.startswith("loss_") and not torch.isfinite(v).all()]
+        raise NonFiniteError(f"non-finite PPO loss {bad or ['gradient']}; try a smaller agent.lr")
+    optimizer.step()
+    if aux_stats is not None:
+        aux.step()
+    return losses, grad_norm, aux_stats
+
+
 def ppo_update(
     cfg, buffer, agent, loss_fn, optimizer, params, aux=None, lr_schedule=None
 ) -> tuple[dict[str, float], list[dict[str, float]]]:
@@ -100,21 +123,13 @@ def ppo_update(
         epoch_kl = []
         for _ in range(cfg.agent.minibatches):
             aux_data = next(aux_batches, None)
-            total, losses, aux_stats = minibatch_loss(agent, loss_fn, buffer.sample(), aux, aux_data)
-            optimizer.zero_grad(set_to_none=True)
-            if aux is not None:
-                aux.zero_grad()
-            total.backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(params, cfg.agent.max_grad_norm)
-            if not bool(torch.isfinite(total) and torch.isfinite(grad_norm)):
-                bad = [k for k, v in losses.items() if k.startswith("loss_") and not torch.isfinite(v).all()]
-                raise NonFiniteError(f"non-finite PPO loss {bad or ['gradient']}; try a smaller agent.lr")
-            optimizer.step()
+            losses, grad_norm, aux_stats = minibatch_step(
+                agent, loss_fn, optimizer, params, cfg.agent.max_grad_norm, buffer.sample(), aux, aux_data
+            )
             diag = {k: float(v.detach().mean()) for k, v in losses.items()}
             diag["grad_norm"] = float(grad_norm)
             diag["kl_k3"] = kl_k3(diag["kl_approx"], diag["mean_ratio"])
             if aux_stats is not None:
-                aux.step()
                 aux_rows.append(aux_stats)
                 diag.update({f"aux/{k}": v for k, v in aux_stats.items() if "loss" in k})
             rows.append(diag)
