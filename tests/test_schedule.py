@@ -8,7 +8,7 @@ from roto_trl.train import train
 from roto_trl.trainers.builders import agent_for_env, make_collector, make_eval_env, make_train_env
 from roto_trl.trainers.checkpoint import load_checkpoint
 from roto_trl.trainers.evaluation import evaluate
-from roto_trl.trainers.progress import TrainingProgress, format_duration, time_to_budget
+from roto_trl.trainers.progress import TrainingProgress, estimate_line, format_duration, time_to_budget
 from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due, evaluations_left
 
 
@@ -45,6 +45,14 @@ def test_eval_clock_sums_evaluations_and_gives_their_share():
 def test_time_to_budget_and_its_format():
     assert time_to_budget(1_000_000, 2000.0, 4, 5.0) == pytest.approx(520.0)  # 500 s + 4 x 5 s
     assert [format_duration(s) for s in (12.4, 250, 11_100)] == ["12s", "4m 10s", "3h 05m"]
+
+
+def test_the_estimate_line_does_not_count_untimed_evaluations_as_free():
+    timed = estimate_line(1_000_000, 2000.0, 4, 5.0)
+    assert timed.endswith("1,000,000 frames to the budget: about 8m 40s with 4 evaluations of 5.0 s")
+    # a resumed run prints its line before its first evaluation is timed
+    assert estimate_line(1_000_000, 2000.0, 4, 0.0).endswith("about 8m 20s with 4 evaluations not yet timed")
+    assert estimate_line(1_000_000, 2000.0, 0, 0.0).endswith("about 8m 20s with no evaluation left")
 
 
 def test_progress_moves_with_each_collected_step_and_not_during_evaluation():

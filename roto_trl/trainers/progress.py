@@ -23,6 +23,23 @@ def format_duration(seconds: float) -> str:
     return f"{minutes}m {secs:02d}s" if minutes else f"{secs}s"
 
 
+def estimate_line(remaining_frames: int, fps: float, evals_left: int, eval_seconds: float) -> str:
+    """The first iteration's line: speed and time to the budget. ``eval_seconds`` 0 means no
+    evaluation has been timed yet (a resumed run before its first one): the line says so rather
+    than counting them as free."""
+    eta = format_duration(time_to_budget(remaining_frames, fps, evals_left, eval_seconds))
+    if not evals_left:
+        evals = "no evaluation left"
+    elif eval_seconds > 0:
+        evals = f"{evals_left} evaluations of {eval_seconds:.1f} s"
+    else:
+        evals = f"{evals_left} evaluations not yet timed"
+    return (
+        f"speed: {fps:,.0f} frames/s (first iteration); {remaining_frames:,} frames to the budget: "
+        f"about {eta} with {evals}"
+    )
+
+
 def time_to_budget(remaining_frames: int, fps: float, evals_left: int, eval_seconds: float) -> float:
     """Seconds to train ``remaining_frames`` at ``fps`` plus ``evals_left`` evaluations of
     ``eval_seconds`` each."""
@@ -66,11 +83,7 @@ class TrainingProgress:
         if not self._estimated and fps > 0:
             self._estimated = True
             remaining = max(0, self.total_frames - frames)
-            eta = time_to_budget(remaining, fps, evals_left, eval_seconds)
-            self.bar.write(
-                f"speed: {fps:,.0f} frames/s (first iteration); {remaining:,} frames to the budget: "
-                f"about {format_duration(eta)} with {evals_left} evaluations of {eval_seconds:.1f} s"
-            )
+            self.bar.write(estimate_line(remaining, fps, evals_left, eval_seconds))
 
     def close(self) -> None:
         self.bar.close()
