@@ -38,7 +38,7 @@ from roto_trl.analysis.runs import (
     physical_metrics,
     run_csv,
 )
-from roto_trl.analysis.stability import run_stability, stability_markdown
+from roto_trl.analysis.stability import run_stability, stability_csv_rows, stability_markdown
 from roto_trl.analysis.table import (
     load_reference,
     parse_frames,
@@ -303,13 +303,14 @@ def cmd_table(runs: list[Run], out: Path, args) -> list[Path]:
 
 
 def cmd_stability(runs: list[Run], out: Path, args) -> list[Path]:
-    """Per run: best and final evaluation of the task's metric, median KL and clip fraction."""
-    rows = [run_stability(run) for run in runs]
-    markdown = stability_markdown(rows)
+    """Per run: training episodes at frame marks, best and final evaluation of the task's metric,
+    median KL and clip fraction."""
+    marks = parse_frames(args.at)
+    rows = [run_stability(run, marks) for run in runs]
+    markdown = stability_markdown(rows, marks)
     print(markdown)
     (out / "stability.md").write_text(markdown)
-    header = [*vars(rows[0]), "held"]
-    csv_rows = [[*vars(row).values(), row.held] for row in rows]
+    header, csv_rows = stability_csv_rows(rows, marks)
     return [out / "stability.md", write_csv(out / "stability.csv", header, csv_rows)]
 
 
@@ -369,6 +370,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         if name == "table":
             p.add_argument("--at", default=None, help="also at these frame counts, e.g. 2.5M,5M,10M")
             p.add_argument("--reference", action="store_true", help="the authors' numbers beside ours")
+        if name == "stability":
+            p.add_argument(
+                "--at", default="0.3M,0.5M,1M,1.5M,2M", help="frame marks of the training-episode column"
+            )
     return parser.parse_args(argv)
 
 

@@ -2,11 +2,14 @@
 frame counts, and the authors' numbers beside them; checked on hand-written runs."""
 
 import csv
+import math
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from roto_trl import analyse
+from roto_trl.analysis.stability import training_at
 from roto_trl.analysis.table import frames_label, load_reference, parse_frames, table_metric
 
 M = 1_000_000
@@ -149,19 +152,34 @@ def test_stability_rows_by_hand(tmp_path, capsys):
     run.mkdir()
     (run / "config.yaml").write_text("exp_name: bounce_ppo\nseed: 3\nenv:\n  task: bounce\n")
     (run / "eval.csv").write_text("frames,return_mean,bounces_per_10s\n0,0.1,0\n100,50,10\n200,40,7\n")
-    # the per-iteration medians: KL 0.01, 0.03, (empty), 0.02 -> 0.02; clip 0.1, 0.3, 0.2 -> 0.2
+    # the per-iteration medians: KL 0.01, 0.03, (empty), 0.02 -> 0.02; clip 0.1, 0.3, 0.2 -> 0.2;
+    # training episodes: 2 ended with 1 bounce at 50, none at 100, 1 with 4 at 150, 3 with 8 at 200
     (run / "train.csv").write_text(
-        "frames,fps,kl_k3_median,clip_fraction_median\n50,900,0.01,0.1\n100,1000,0.03,0.3\n"
-        "150,1100,,\n200,1200,0.02,0.2\n"
+        "frames,fps,kl_k3_median,clip_fraction_median,episodes,episode/bounces\n"
+        "50,900,0.01,0.1,2,1\n100,1000,0.03,0.3,,\n150,1100,,,1,4\n200,1200,0.02,0.2,3,8\n"
     )
     (run / "eval.json").write_text('{"episodes": 100, "physical": {"bounces_per_10s": 9.5}}')
     out = tmp_path / "stability"
-    analyse.main(["stability", str(run), "--out", str(out)])
+    analyse.main(["stability", str(run), "--out", str(out), "--at", "100,200,300"])
     with (out / "stability.csv").open(newline="") as handle:
         (row,) = list(csv.DictReader(handle))
+    # windows of 49,152 frames hold everything up to the mark: (2 x 1) / 2 and (2 + 4 + 24) / 6;
+    # the log ends before 300
+    assert float(row["training_100"]) == 1.0 and float(row["training_200"]) == 5.0
+    assert math.isnan(float(row["training_300"]))
     assert (row["best"], row["best_frames"], row["final"]) == ("10.0", "100", "7.0")
     assert float(row["held"]) == pytest.approx(0.7)  # under 0.8 of the best: flagged
     assert (float(row["kl_median"]), float(row["clip_median"])) == (0.02, 0.2)
     assert float(row["frames_per_s"]) == 1050
     assert (row["checkpoint_value"], row["checkpoint_episodes"]) == ("9.5", "100")
-    assert "0.70 (fell back)" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "0.70 (fell back)" in printed and "episode/bounces: 1.00 / 5.00 / –" in printed
+
+
+def test_training_windows_by_hand():
+    frames = np.array([100_000, 200_000, 250_000, 300_000])
+    values = np.array([1.0, 2.0, np.nan, 6.0])
+    episodes = np.array([10, 30, 0, 10])
+    # window 150k before 300k: 200k (30 x 2) and 300k (10 x 6); 250k had no episode
+    at = training_at(frames, values, episodes, [300_000, 100_000, 400_000], window=150_000)
+    assert at[:2] == [pytest.approx(3.0), 1.0] and math.isnan(at[2])

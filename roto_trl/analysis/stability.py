@@ -6,6 +6,10 @@ headline metric; a run holds what it learns when its final evaluation is at leas
 per-iteration median per-minibatch KL (``kl_k3_median``, skrl's estimator) and clip fraction
 (``clip_fraction_median``) from ``train.csv``. ``eval.json`` (``evaluate.py``, 100 episodes of the
 best checkpoint for the results table) adds its headline value and episode count.
+
+The training episodes (the stochastic policy) give a second view at chosen frame marks: the mean
+of the task's episode metric (``TRAINING_METRIC``) over the episodes that ended in the
+``TRAINING_WINDOW`` frames before each mark, weighted by how many ended in each iteration.
 """
 
 from __future__ import annotations
@@ -17,9 +21,37 @@ from dataclasses import dataclass
 import numpy as np
 
 from roto_trl.analysis.runs import Run, run_csv
+from roto_trl.analysis.table import frames_label
 
 HEADLINE = {"bounce": "bounces_per_10s", "find": "reached_3cm", "baoding": "rotations_per_10s"}
 HOLD_FRACTION = 0.8
+TRAINING_METRIC = {
+    "bounce": "episode/bounces",
+    "find": "episode/find_time_3cm",
+    "baoding": "episode/rotations",
+}
+TRAINING_WINDOW = 49_152  # 12 iterations of 256 worlds x 16 steps: a few hundred episodes
+DEFAULT_MARKS = (300_000, 500_000, 1_000_000, 1_500_000, 2_000_000)
+
+
+def training_at(
+    frames: np.ndarray, values: np.ndarray, episodes: np.ndarray, marks, window: int = TRAINING_WINDOW
+) -> list[float]:
+    """The episode-weighted mean of ``values`` over the iterations logged at ``frames`` in
+    ``(mark - window, mark]``, for each mark; NaN where the log ends before the mark or no
+    episode ended in the window.
+
+    All arrays are ``[iterations]``; ``values[i]`` is the mean over the ``episodes[i]`` episodes
+    that ended in iteration ``i`` (NaN when none did).
+    """
+    out = []
+    for mark in marks:
+        inside = (frames > mark - window) & (frames <= mark) & (episodes > 0) & ~np.isnan(values)
+        if frames.size == 0 or frames[-1] < mark or not inside.any():
+            out.append(math.nan)
+            continue
+        out.append(float(np.average(values[inside], weights=episodes[inside])))
+    return out
 
 
 @dataclass
@@ -38,6 +70,8 @@ class RunStability:
     frames_per_s: float
     checkpoint_value: float | None = None  # eval.json's value of ``metric`` (best checkpoint)
     checkpoint_episodes: int | None = None
+    training_metric: str = ""
+    training: dict[int, float] | None = None  # mark (frames) -> training episodes' mean
 
     @property
     def held(self) -> float:
@@ -45,8 +79,9 @@ class RunStability:
         return self.final / self.best if self.best > 0 else 1.0
 
 
-def run_stability(run: Run) -> RunStability:
-    """The run's row; a ``ValueError`` naming the missing log otherwise."""
+def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
+    """The run's row, with the training episodes at ``marks``; a ``ValueError`` naming the
+    missing log otherwise."""
     metric = HEADLINE[run.task]
     ev = run_csv(run, "eval.csv", "stability needs runs that have evaluated at least once")
     train = run_csv(run, "train.csv", "stability needs the training log")
@@ -65,7 +100,15 @@ def run_stability(run: Run) -> RunStability:
         kl_median=_median(train.get("kl_k3_median")),
         clip_median=_median(train.get("clip_fraction_median")),
         frames_per_s=_median(train.get("fps")),
+        training_metric=TRAINING_METRIC[run.task],
     )
+    column = train.get(TRAINING_METRIC[run.task])
+    if column is not None and "episodes" in train:
+        at = training_at(
+            *(np.asarray(train[k], dtype=float) for k in ("frames", TRAINING_METRIC[run.task], "episodes")),
+            marks,
+        )
+        row.training = dict(zip(marks, at, strict=True))
     checkpoint = run.path / "eval.json"
     if checkpoint.is_file():
         result = json.loads(checkpoint.read_text())
@@ -80,21 +123,39 @@ def _median(series: list[float] | None) -> float:
     return float(np.median(values)) if values.size else math.nan
 
 
-def stability_markdown(rows: list[RunStability]) -> str:
-    """A Markdown table, one line per run."""
+def stability_markdown(rows: list[RunStability], marks=DEFAULT_MARKS) -> str:
+    """A Markdown table, one line per run; the training column lists the values at ``marks``."""
+    at = " / ".join(frames_label(m) for m in marks)
     header = (
-        "| run | seed | metric | frames | best (at) | final | final / best | best checkpoint (episodes)"
-        " | median KL | median clip | frames/s |"
+        f"| run | seed | training episodes at {at} | metric | frames | best (at) | final | final / best"
+        " | best checkpoint (episodes) | median KL | median clip | frames/s |"
     )
-    lines = [header, "|" + "---|" * 11]
+    lines = [header, "|" + "---|" * 12]
     for r in rows:
         checkpoint = "–"
         if r.checkpoint_value is not None:
             checkpoint = f"{r.checkpoint_value:.3g} ({r.checkpoint_episodes})"
         flag = "" if r.held >= HOLD_FRACTION else " (fell back)"
+        training = " / ".join(_cell((r.training or {}).get(m, math.nan)) for m in marks)
         lines.append(
-            f"| {r.label} | {r.seed} | {r.metric} | {r.frames:,} | {r.best:.3g} ({r.best_frames:,}) | "
+            f"| {r.label} | {r.seed} | {r.training_metric}: {training} | {r.metric} | {r.frames:,} | "
+            f"{r.best:.3g} ({r.best_frames:,}) | "
             f"{r.final:.3g} | {r.held:.2f}{flag} | {checkpoint} | {r.kl_median:.3g} | "
             f"{r.clip_median:.2f} | {r.frames_per_s:,.0f} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _cell(value: float) -> str:
+    return "–" if math.isnan(value) else f"{value:.2f}"
+
+
+def stability_csv_rows(rows: list[RunStability], marks=DEFAULT_MARKS) -> tuple[list[str], list[list]]:
+    """Header and rows for ``stability.csv``: one column per field, ``training_<mark>`` per mark."""
+    fields = [k for k in vars(rows[0]) if k != "training"]
+    header = [*fields, *(f"training_{frames_label(m)}" for m in marks), "held"]
+    body = [
+        [*(getattr(r, k) for k in fields), *((r.training or {}).get(m, math.nan) for m in marks), r.held]
+        for r in rows
+    ]
+    return header, body
