@@ -8,7 +8,9 @@ Keys (``key=value``): ``run`` (required, a run directory of ``train.py``), ``che
 run's ``eval.num_envs``; one world per episode), ``seed`` (default: the seed of the run's own
 evaluations, so ``episodes=<eval.num_envs>`` replays them), ``video`` (``true``: an mp4 of the
 first episode in ``<run>/videos/``), ``out`` (default ``<run>/eval.json``), ``policy``
-(``deterministic``, the default: the policy's mean action, as the training evaluations;
+(``deterministic``, the default: the run's ``agent.deterministic_action``, as its training
+evaluations; ``applied_mean``: the mean of the action the env applies, E[clip(sample)];
+``gaussian_mean``: the Gaussian's mean, skrl's and the authors' deterministic action;
 ``stochastic``: samples of its Gaussian, seeded, as the agent acts in training).
 
 Physical metrics (per task, :meth:`~roto_trl.envs.robot_env.RobotTaskEnv.physical_metrics`):
@@ -28,7 +30,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from roto_trl.analysis.checkpoint_eval import evaluate_run
+from roto_trl.analysis.checkpoint_eval import POLICIES, evaluate_run
 from roto_trl.utils.cli import check_int, parse_key_values
 from roto_trl.utils.paths import writable_file
 
@@ -41,7 +43,6 @@ DEFAULTS = {
     "out": None,
     "policy": "deterministic",
 }
-POLICIES = ("deterministic", "stochastic")
 
 
 def print_result(result: dict[str, Any]) -> None:
@@ -75,7 +76,7 @@ def main(argv: list[str] | None = None) -> Path:
             cfg.seed,
             bool(cfg.video),
             None if cfg.out is None else Path(str(cfg.out)),
-            cfg.policy == "stochastic",
+            str(cfg.policy),
         )
     except (ValueError, RuntimeError, FileNotFoundError) as err:  # bad input: one line, no traceback
         raise SystemExit(f"evaluate: {err}") from None

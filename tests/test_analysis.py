@@ -132,10 +132,23 @@ def test_evaluate_can_act_with_the_policys_seeded_samples(runs, tmp_path):
 
     mean_action = result("d.json")
     sampled, again = result("s1.json", "policy=stochastic"), result("s2.json", "policy=stochastic")
-    assert (mean_action["policy"], sampled["policy"]) == ("deterministic", "stochastic")
+    gaussian_mean = result("g.json", "policy=gaussian_mean")
+    # the default is the run's agent.deterministic_action: the mean of the applied action
+    assert [r["policy"] for r in (mean_action, sampled, gaussian_mean)] == [
+        "applied_mean",
+        "stochastic",
+        "gaussian_mean",
+    ]
     assert sampled["return_mean"] == again["return_mean"]  # seeded
     assert sampled["return_mean"] != mean_action["return_mean"]  # a std-1 policy's samples differ
-    with pytest.raises(SystemExit, match=r"policy must be one of \['deterministic', 'stochastic'\]"):
+    # two controllers at std 1: the Find arm ends elsewhere (Bounce's ball drops either way)
+    find = [f"run={runs['find']}", "episodes=2", "seed=3"]
+    applied = json.loads(evaluate.main([*find, f"out={tmp_path / 'fa.json'}"]).read_text())
+    gaussian = json.loads(
+        evaluate.main([*find, f"out={tmp_path / 'fg.json'}", "policy=gaussian_mean"]).read_text()
+    )
+    assert applied["metrics"]["object_distance"] != gaussian["metrics"]["object_distance"]
+    with pytest.raises(SystemExit, match=r"policy must be one of \['deterministic', 'applied_mean'"):
         evaluate.main([f"run={runs['ppo0']}", "policy=random"])
 
 

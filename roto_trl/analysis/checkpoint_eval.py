@@ -11,12 +11,25 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from roto_trl.analysis.report import write_index
+from roto_trl.modules.distributions import DETERMINISTIC_ACTIONS
 from roto_trl.trainers.builders import eval_seed, make_eval_env
 from roto_trl.trainers.checkpoint import BEST, LATEST, agent_from_checkpoint, load_checkpoint
 from roto_trl.trainers.evaluation import run_episodes
 from roto_trl.utils.video import write_mp4
 
 NAMED = {"best": BEST, "latest": LATEST}
+# "deterministic": the run's agent.deterministic_action (applied_mean for runs without the key)
+POLICIES = ("deterministic", *DETERMINISTIC_ACTIONS, "stochastic")
+
+
+def resolve_policy(policy: str, state: dict[str, Any]) -> str:
+    """The evaluation policy's name: ``deterministic`` becomes the checkpoint's
+    ``agent.deterministic_action``; a ``ValueError`` names the choices for anything unknown."""
+    if policy not in POLICIES:
+        raise ValueError(f"policy must be one of {list(POLICIES)}, got {policy!r}")
+    if policy == "deterministic":
+        return str(state["config"]["agent"].get("deterministic_action", "applied_mean"))
+    return policy
 
 
 def load_run(run_dir: Path, checkpoint: str = "best") -> tuple[DictConfig, dict[str, Any], Path]:
@@ -55,23 +68,29 @@ def evaluate_checkpoint(
     episodes: int,
     seed: int,
     video: bool = False,
-    stochastic: bool = False,
+    policy: str = "deterministic",
 ) -> tuple[dict[str, Any], list]:
-    """Evaluate a checkpoint's policy on ``episodes`` fresh worlds of its task: its mean action
-    (deterministic, the default and the training evaluations'), or with ``stochastic`` samples
-    of its Gaussian as in training.
+    """Evaluate a checkpoint's policy on ``episodes`` fresh worlds of its task.
+
+    ``policy`` (:data:`POLICIES`): ``deterministic`` (the default and the training evaluations':
+    the run's ``agent.deterministic_action``), ``applied_mean`` or ``gaussian_mean`` (that
+    deterministic action whatever the run used, see ``roto_trl.modules.distributions``), or
+    ``stochastic`` (seeded samples of the policy's Gaussian, clipped by the env as in training).
 
     Returns the result (return mean/std, mean episode length, episode metric means, physical
     metrics) and, with ``video``, the RGB frames of the first episode.
     """
+    policy = resolve_policy(policy, state)
     run_cfg = OmegaConf.create(state["config"])
     run_cfg.device = "cpu"
+    if policy in DETERMINISTIC_ACTIONS:
+        run_cfg.agent.deterministic_action = policy
     env = make_eval_env(run_cfg, episodes)
     try:
-        agent = agent_from_checkpoint(state, env)
+        agent = agent_from_checkpoint({**state, "config": OmegaConf.to_container(run_cfg)}, env)
         base = env.base_env
         render = (lambda: base.render(0)) if video else None
-        result = run_episodes(env, agent, seed, render=render, stochastic=stochastic)
+        result = run_episodes(env, agent, seed, render=render, stochastic=policy == "stochastic")
         physical = base.physical_metrics(result.final)
     finally:
         env.close()
@@ -81,7 +100,7 @@ def evaluate_checkpoint(
         "trained_frames": int(state["frames"]),
         "episodes": int(episodes),
         "seed": int(seed),
-        "policy": "stochastic" if stochastic else "deterministic",
+        "policy": policy,
         "return_mean": float(result.returns.mean()),
         "return_std": float(result.returns.std(correction=0)),
         "episode_steps_mean": float(result.lengths.double().mean()),
@@ -98,7 +117,7 @@ def evaluate_run(
     seed: int | None = None,
     video: bool = False,
     out: Path | None = None,
-    stochastic: bool = False,
+    policy: str = "deterministic",
 ) -> Path:
     """Evaluate one checkpoint of a run, write ``eval.json`` (and the video), refresh ``index.md``."""
     run_dir = Path(run_dir)
@@ -107,7 +126,7 @@ def evaluate_run(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     seed = eval_seed(cfg) if seed is None else int(seed)
-    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video, stochastic)
+    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video, policy)
     summary = {"run_dir": str(run_dir.resolve()), "checkpoint": str(path.resolve()), **summary}
     if video:
         video_path = run_dir / "videos" / f"eval-{path.stem}-s{seed}.mp4"

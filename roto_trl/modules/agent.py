@@ -15,8 +15,9 @@ from __future__ import annotations
 import torch
 from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
-from torchrl.modules import ActorValueOperator, IndependentNormal, ProbabilisticActor, ValueOperator
+from torchrl.modules import ActorValueOperator, ProbabilisticActor, ValueOperator
 
+from roto_trl.modules.distributions import policy_distribution
 from roto_trl.modules.networks import Encoder, PolicyHead, ValueHead
 from roto_trl.modules.normalization import ValueNormalizer
 
@@ -45,6 +46,9 @@ class Agent(nn.Module):
             False: the critic has its own encoder of the same size, trained by the value loss
             only; the policy's encoder is the one the SSL objectives train (``common``).
         init_log_std: the policy's initial log standard deviation (0: std 1, the paper's).
+        deterministic_action: the evaluation action, ``applied_mean`` (the mean of the clipped
+            action the env applies) or ``gaussian_mean`` (skrl's, the authors'); see
+            ``roto_trl.modules.distributions``.
     """
 
     def __init__(
@@ -54,6 +58,7 @@ class Agent(nn.Module):
         n_actions: int,
         shared_encoder: bool = True,
         init_log_std: float = 0.0,
+        deterministic_action: str = "applied_mean",
     ) -> None:
         super().__init__()
         self.obs_keys = tuple(obs_keys)
@@ -67,9 +72,10 @@ class Agent(nn.Module):
         self.actor_head = ProbabilisticActor(
             TensorDictModule(self.policy_head, in_keys=[LATENT_KEY], out_keys=["loc", "scale"]),
             in_keys=["loc", "scale"],
-            distribution_class=IndependentNormal,
+            distribution_class=policy_distribution(deterministic_action),
             return_log_prob=True,
         )
+        self.deterministic_action = deterministic_action
         self.shared_encoder = bool(shared_encoder)
         if self.shared_encoder:  # the paper's agent: the value head reads the policy's z
             self.critic_head = ValueOperator(self.value_head, in_keys=[LATENT_KEY])

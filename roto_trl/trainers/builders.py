@@ -80,8 +80,15 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
         raise ValueError(f"env.obs_keys {missing} are not observations of {cfg.env.task}; use prop/tactile")
     obs_dim = sum(int(spec[k].shape[-1]) for k in keys)
     shared = bool(cfg.agent.get("shared_encoder", True))  # runs from before the option: shared
-    init_log_std = float(cfg.agent.get("init_log_std", 0.0))
-    agent = Agent(keys, obs_dim, env.base_env.n_actions, shared_encoder=shared, init_log_std=init_log_std)
+    agent = Agent(
+        keys,
+        obs_dim,
+        env.base_env.n_actions,
+        shared_encoder=shared,
+        init_log_std=float(cfg.agent.get("init_log_std", 0.0)),
+        # runs from before the option: the new default, which changes no parameter
+        deterministic_action=str(cfg.agent.get("deterministic_action", "applied_mean")),
+    )
     return agent.to(cfg.device)
 
 
