@@ -213,6 +213,26 @@ def test_lr_schedule_config():
         make_lr_schedule(compose_cfg(["+exp=bounce_ppo", "agent.lr_schedule=cosine"]), optimizer)
 
 
+def test_the_log_std_can_keep_the_fixed_rate_while_the_kl_rule_moves_the_rest():
+    agent = Agent(("prop",), P, A)
+    cfg = compose_cfg(["+exp=bounce_ppo", "agent.lr_schedule=kl_adaptive", "agent.log_std_fixed_lr=true"])
+    optimizer = make_optimizer(cfg, agent)
+    networks, log_std = optimizer.param_groups
+    assert log_std["params"] == [agent.policy_head.log_std]  # each parameter in exactly one group
+    assert {id(p) for p in networks["params"]} == {id(p) for p in agent.parameters()} - {
+        id(agent.policy_head.log_std)
+    }
+    make_lr_schedule(cfg, optimizer).step(0.05)  # KL above 2 x 0.008: lr / 1.5 for the networks only
+    assert networks["lr"] == pytest.approx(cfg.agent.lr / 1.5) and log_std["lr"] == cfg.agent.lr
+    # and it survives a checkpoint: the group's flag and rate come back with the optimiser's state
+    again = make_optimizer(cfg, Agent(("prop",), P, A))
+    again.load_state_dict(optimizer.state_dict())
+    assert [g["lr"] for g in again.param_groups] == [networks["lr"], log_std["lr"]]
+    assert again.param_groups[1]["kl_adaptive"] is False
+    # off by default: one group
+    assert len(make_optimizer(compose_cfg(["+exp=bounce_ppo"]), agent).param_groups) == 1
+
+
 def test_the_forward_model_learns_from_the_action_the_env_applied():
     from roto_trl.trainers.builders import agent_for_env, make_aux_update, make_collector, make_train_env
 

@@ -54,5 +54,6 @@ class KLAdaptiveLR:
     def step(self, kl: float) -> float:
         """Update the learning rate from an epoch's mean approximate KL; returns the new rate."""
         for group in self.optimizer.param_groups:
-            group["lr"] = kl_adaptive_lr(group["lr"], kl, self.kl_target)
+            if group.get("kl_adaptive", True):  # False: a group kept at its rate (log_std_fixed_lr)
+                group["lr"] = kl_adaptive_lr(group["lr"], kl, self.kl_target)
         return self.optimizer.param_groups[0]["lr"]
