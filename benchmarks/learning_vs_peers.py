@@ -21,16 +21,19 @@ from __future__ import annotations
 
 import argparse
 import csv
+import math
 import subprocess
 import sys
 import time
 from datetime import datetime
 from pathlib import Path
 
+import numpy as np
 import torch
 from hydra import compose, initialize_config_dir
 from omegaconf import OmegaConf
 
+from roto_trl.analysis.stability import training_at
 from roto_trl.analysis.table import parse_frames
 from roto_trl.utils.resources import resource_dir
 
@@ -46,14 +49,6 @@ def frames_arg(text: str) -> int:
 def threads_overrides(threads: int | None) -> list[str]:
     """The overrides that give torch and the physics ``threads`` threads (none: the defaults)."""
     return [f"torch_threads={threads}", f"+env.overrides.num_threads={threads}"] if threads else []
-
-
-def window_mean(episodes: list[tuple[int, float, float]], mark: int, window: int) -> float | None:
-    """Mean metric of the episodes ``(frames at end, metric, weight)`` that ended in
-    ``(mark - window, mark]``; None when none did."""
-    inside = [(value, weight) for end, value, weight in episodes if mark - window < end <= mark]
-    total = sum(weight for _, weight in inside)
-    return sum(value * weight for value, weight in inside) / total if total else None
 
 
 def ours(args, overrides: list[str], out: Path) -> tuple[list[tuple[int, float, float]], float]:
@@ -165,8 +160,9 @@ def main() -> None:
     header = f"{'trainer':<8}" + "".join(f"{m:>12,}" for m in marks) + f"{'frames/s':>10}"
     print(header + "\n" + "-" * len(header))
     for name, (episodes, fps) in results.items():
-        cells = [window_mean(episodes, m, args.window) for m in marks]
-        text = "".join(f"{'-':>12}" if c is None else f"{c:>12.2f}" for c in cells)
+        ends, values, weights = np.asarray(episodes, dtype=float).reshape(-1, 3).T  # none ended: empty
+        cells = training_at(ends, values, weights, marks, args.window, until=args.frames)
+        text = "".join(f"{'-':>12}" if math.isnan(c) else f"{c:>12.2f}" for c in cells)
         print(f"{name:<8}{text}{fps:>10,.0f}")
     print(f"runs: {out}")
 

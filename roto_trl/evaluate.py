@@ -30,7 +30,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from roto_trl.analysis.checkpoint_eval import POLICIES, evaluate_run
+from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.utils.cli import check_int, parse_key_values
 from roto_trl.utils.paths import writable_file
 
@@ -63,8 +63,6 @@ def main(argv: list[str] | None = None) -> Path:
     check_int("evaluate", cfg, "seed", 0, optional=True)
     if not isinstance(cfg.video, bool):
         raise SystemExit(f"evaluate: video must be true or false, got {cfg.video!r}")
-    if cfg.policy not in POLICIES:
-        raise SystemExit(f"evaluate: policy must be one of {list(POLICIES)}, got {cfg.policy!r}")
     try:
         out = Path(str(cfg.out)) if cfg.out is not None else Path(str(cfg.run)) / "eval.json"
         if cfg.out is not None or out.parent.is_dir():  # before the evaluation, not after it

@@ -183,3 +183,5 @@ def test_training_windows_by_hand():
     # window 150k before 300k: 200k (30 x 2) and 300k (10 x 6); 250k had no episode
     at = training_at(frames, values, episodes, [300_000, 100_000, 400_000], window=150_000)
     assert at[:2] == [pytest.approx(3.0), 1.0] and math.isnan(at[2])
+    # a per-episode log whose last episode ended before the budget: ``until`` says what it covers
+    assert training_at(frames, values, episodes, [400_000], window=150_000, until=400_000) == [6.0]

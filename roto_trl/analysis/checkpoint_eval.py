@@ -11,14 +11,14 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from roto_trl.analysis.report import write_index
-from roto_trl.modules.distributions import DETERMINISTIC_ACTIONS
+from roto_trl.modules.distributions import DEFAULT_DETERMINISTIC_ACTION, DETERMINISTIC_ACTIONS
 from roto_trl.trainers.builders import eval_seed, make_eval_env
 from roto_trl.trainers.checkpoint import BEST, LATEST, agent_from_checkpoint, load_checkpoint
 from roto_trl.trainers.evaluation import run_episodes
 from roto_trl.utils.video import write_mp4
 
 NAMED = {"best": BEST, "latest": LATEST}
-# "deterministic": the run's agent.deterministic_action (applied_mean for runs without the key)
+# "deterministic": the run's agent.deterministic_action (the default for runs without the key)
 POLICIES = ("deterministic", *DETERMINISTIC_ACTIONS, "stochastic")
 
 
@@ -28,7 +28,7 @@ def resolve_policy(policy: str, state: dict[str, Any]) -> str:
     if policy not in POLICIES:
         raise ValueError(f"policy must be one of {list(POLICIES)}, got {policy!r}")
     if policy == "deterministic":
-        return str(state["config"]["agent"].get("deterministic_action", "applied_mean"))
+        return str(state["config"]["agent"].get("deterministic_action", DEFAULT_DETERMINISTIC_ACTION))
     return policy
 
 

@@ -35,19 +35,27 @@ DEFAULT_MARKS = (300_000, 500_000, 1_000_000, 1_500_000, 2_000_000)
 
 
 def training_at(
-    frames: np.ndarray, values: np.ndarray, episodes: np.ndarray, marks, window: int = TRAINING_WINDOW
+    frames: np.ndarray,
+    values: np.ndarray,
+    episodes: np.ndarray,
+    marks,
+    window: int = TRAINING_WINDOW,
+    until: int | None = None,
 ) -> list[float]:
-    """The episode-weighted mean of ``values`` over the iterations logged at ``frames`` in
+    """The episode-weighted mean of ``values`` over the entries logged at ``frames`` in
     ``(mark - window, mark]``, for each mark; NaN where the log ends before the mark or no
     episode ended in the window.
 
-    All arrays are ``[iterations]``; ``values[i]`` is the mean over the ``episodes[i]`` episodes
-    that ended in iteration ``i`` (NaN when none did).
+    All arrays are ``[entries]``: an iteration's mean over the ``episodes[i]`` episodes that
+    ended in it (NaN when none did), or one episode with weight 1. ``until``: the frames the log
+    covers (default its last entry; give it for a per-episode log, whose last episode ends
+    before the budget).
     """
+    until = (frames[-1] if frames.size else 0) if until is None else until
     out = []
     for mark in marks:
         inside = (frames > mark - window) & (frames <= mark) & (episodes > 0) & ~np.isnan(values)
-        if frames.size == 0 or frames[-1] < mark or not inside.any():
+        if until < mark or not inside.any():
             out.append(math.nan)
             continue
         out.append(float(np.average(values[inside], weights=episodes[inside])))
@@ -102,13 +110,9 @@ def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
         frames_per_s=_median(train.get("fps")),
         training_metric=TRAINING_METRIC[run.task],
     )
-    column = train.get(TRAINING_METRIC[run.task])
-    if column is not None and "episodes" in train:
-        at = training_at(
-            *(np.asarray(train[k], dtype=float) for k in ("frames", TRAINING_METRIC[run.task], "episodes")),
-            marks,
-        )
-        row.training = dict(zip(marks, at, strict=True))
+    if row.training_metric in train and "episodes" in train:
+        columns = (np.asarray(train[k], dtype=float) for k in ("frames", row.training_metric, "episodes"))
+        row.training = dict(zip(marks, training_at(*columns, marks), strict=True))
     checkpoint = run.path / "eval.json"
     if checkpoint.is_file():
         result = json.loads(checkpoint.read_text())

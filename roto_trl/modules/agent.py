@@ -17,7 +17,7 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.modules import ActorValueOperator, ProbabilisticActor, ValueOperator
 
-from roto_trl.modules.distributions import policy_distribution
+from roto_trl.modules.distributions import DEFAULT_DETERMINISTIC_ACTION, policy_distribution
 from roto_trl.modules.networks import Encoder, PolicyHead, ValueHead
 from roto_trl.modules.normalization import ValueNormalizer
 
@@ -58,7 +58,7 @@ class Agent(nn.Module):
         n_actions: int,
         shared_encoder: bool = True,
         init_log_std: float = 0.0,
-        deterministic_action: str = "applied_mean",
+        deterministic_action: str = DEFAULT_DETERMINISTIC_ACTION,
     ) -> None:
         super().__init__()
         self.obs_keys = tuple(obs_keys)

@@ -30,6 +30,7 @@ from torchrl.modules import IndependentNormal
 
 ACTION_BOUNDS = (-1.0, 1.0)  # every task's action_spec; the env clips the policy's samples to it
 DETERMINISTIC_ACTIONS = ("applied_mean", "gaussian_mean")
+DEFAULT_DETERMINISTIC_ACTION = "applied_mean"  # also for runs saved before the option existed
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
 

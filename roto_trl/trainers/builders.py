@@ -19,6 +19,7 @@ from torchrl.objectives.value import GAE
 from roto_trl.data.memory import AuxMemory
 from roto_trl.envs.factory import make_env
 from roto_trl.modules.agent import Agent
+from roto_trl.modules.distributions import DEFAULT_DETERMINISTIC_ACTION
 from roto_trl.objectives import (
     ForwardDynamicsLoss,
     FullReconstructionLoss,
@@ -86,8 +87,8 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
         env.base_env.n_actions,
         shared_encoder=shared,
         init_log_std=float(cfg.agent.get("init_log_std", 0.0)),
-        # runs from before the option: the new default, which changes no parameter
-        deterministic_action=str(cfg.agent.get("deterministic_action", "applied_mean")),
+        # runs from before the option: the default, which changes no parameter
+        deterministic_action=str(cfg.agent.get("deterministic_action", DEFAULT_DETERMINISTIC_ACTION)),
     )
     return agent.to(cfg.device)
 
