@@ -68,11 +68,7 @@ def ours(args, overrides: list[str], out: Path) -> tuple[list[tuple[int, float, 
         f"run_dir={run_dir}",
         "logger=csv",
         "progress=false",
-        *(
-            [f"torch_threads={args.threads}", f"+env.overrides.num_threads={args.threads}"]
-            if args.threads
-            else []
-        ),
+        *threads_overrides(args.threads),
         *overrides,
     ]
     print("$", " ".join(command), flush=True)
