@@ -15,11 +15,14 @@ It prints frames/s, each phase's share of our iteration, ours / serial limit whe
 limit is 1 / (1/sim + 1/update) (collection and update run one after the other on the same
 cores), and ours / best peer. Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
 ``--fused`` adds a column: the bare update with the other Adam (``agent.fused_adam`` negated);
-``--compile`` runs ours and the bare update with ``agent.compile=true``.
+``--compile`` runs ours and the bare update with ``agent.compile=true``; ``--profile cpu`` measures
+the CPU recipe (``+profile=cpu``: separate critic, KL-adaptive rate, 8 minibatches; the peers
+take its minibatch count too) at each ``--num-envs``.
 
     python benchmarks/train_throughput.py          # bounce_ppo and bounce_fd at 256 and 1024 worlds
     python benchmarks/train_throughput.py --exps bounce_ppo --num-envs 256 --iterations 2
     python benchmarks/train_throughput.py --exps baoding_ppo --num-envs 1024 --no-peers --fused
+    python benchmarks/train_throughput.py --profile cpu --iterations 2   # the recipe a CPU user runs
 """
 
 from __future__ import annotations
@@ -148,11 +151,14 @@ def main() -> None:
     parser.add_argument("--no-peers", action="store_true", help="skip skrl and rsl_rl")
     parser.add_argument("--fused", action="store_true", help="also time the bare update with the other Adam")
     parser.add_argument("--compile", action="store_true", help="agent.compile=true (torch.compile)")
+    profiles = sorted(p.stem for p in resource_dir("conf").joinpath("profile").glob("*.yaml"))
+    parser.add_argument("--profile", choices=profiles, help="a conf/profile on top of each exp (+profile=)")
     args = parser.parse_args()
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     print(
         f"torch {torch.__version__}, {torch.get_num_threads()} torch threads, "
-        f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}, {args.iterations} timed iterations; frames/s"
+        f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}, {args.iterations} timed iterations, "
+        f"profile {args.profile or 'none (the exps as the paper has them)'}; frames/s"
     )
     header = (
         f"{'exp':<11} {'N':>5} {'ours':>7} {'sim':>7} {'update':>7} {'limit':>7} {'ours/lim':>8} "
@@ -164,7 +170,8 @@ def main() -> None:
     with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
         for exp in args.exps:
             for n in args.num_envs:
-                overrides = [f"+exp={exp}", f"env.num_envs={n}", "logger.backend=none"]
+                overrides = [f"+exp={exp}"] + ([f"+profile={args.profile}"] if args.profile else [])
+                overrides += [f"env.num_envs={n}", "logger.backend=none"]
                 overrides += ["agent.compile=true"] if args.compile else []
                 cfg = compose("train", overrides=overrides)
                 sim_env = make_train_env(cfg)

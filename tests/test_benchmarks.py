@@ -8,14 +8,15 @@ from pathlib import Path
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
-def test_train_throughput_measures_an_ssl_experiment():
+def test_train_throughput_measures_an_ssl_experiment_with_the_cpu_recipe():
     command = [
         sys.executable,
         str(BENCHMARKS / "train_throughput.py"),
-        *("--exps", "bounce_fd", "--num-envs", "16", "--iterations", "1", "--no-peers"),
+        *("--exps", "bounce_fd", "--num-envs", "16", "--iterations", "1", "--no-peers", "--profile", "cpu"),
     ]
     done = subprocess.run(command, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
+    assert "profile cpu;" in done.stdout.splitlines()[0]
     row = next(line for line in done.stdout.splitlines() if line.startswith("bounce_fd"))
     ours, sim, update, limit, ratio = row.split()[2:7]
     assert all(float(v.replace(",", "")) > 0 for v in (ours, sim, update, limit))
