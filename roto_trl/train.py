@@ -8,14 +8,15 @@ Reads top to bottom: build the envs, the agent, the PPO loss and advantage, the 
 the rollout buffer; then the loop: collect a rollout of every world, estimate advantages, update,
 evaluate every ``eval.every_frames`` frames, log, checkpoint. Everything of a run lands in its
 own directory: ``config.yaml``, ``train.csv``, ``eval.csv``, ``checkpoints/{latest,best}.pt``,
-``plots/`` and ``summary.json``.
+``plots/`` and ``summary.json``. ``best.pt`` is the evaluation with the highest headline metric
+(Find: fraction within 3 cm; Bounce, Baoding: bounces, rotations per 10 s), the return breaking
+ties (``selection_key``).
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import math
 import os
 import random
 import signal
@@ -53,7 +54,7 @@ from roto_trl.trainers.builders import (
 )
 from roto_trl.trainers.checkpoint import BEST, LATEST, load_checkpoint, save_checkpoint
 from roto_trl.trainers.errors import NonFiniteError, RunInUse, TrainingInterrupted, WriteError
-from roto_trl.trainers.evaluation import evaluate
+from roto_trl.trainers.evaluation import evaluate, selection_key
 from roto_trl.trainers.interrupts import StopRequests
 from roto_trl.trainers.loggers import BACKENDS, MetricLogger, read_csv
 from roto_trl.trainers.ppo import ppo_update, rollout_stats, store_rollout
@@ -264,14 +265,15 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     lr_schedule = make_lr_schedule(cfg, optimizer)  # None: agent.lr throughout
     aux = make_aux_update(cfg, agent, env)  # the self-supervised objective, or None
 
-    frames, iteration, best, wall_before = 0, 0, -math.inf, 0.0
+    frames, iteration, wall_before = 0, 0, 0.0
     eval_clock = EvalClock()
-    best_eval: dict[str, float] | None = None
+    best_eval: dict[str, float] | None = None  # the evaluation that best.pt holds
+    headline = env.base_env.HEADLINE_METRIC  # ranks evaluations for best.pt (selection_key)
     if resumed is not None:
         agent.load_state_dict(resumed["agent"])
         optimizer.load_state_dict(resumed["optimizer"])
         frames, iteration = int(resumed["frames"]), int(resumed["iteration"])
-        best, wall_before = float(resumed["best_eval"]), float(resumed.get("wall_time", 0.0))
+        wall_before = float(resumed.get("wall_time", 0.0))
         best_eval = resumed.get("best_eval_metrics")
         eval_clock = EvalClock(resumed.get("eval_time", 0.0))
         set_rng_state(resumed["rng"], env)
@@ -300,7 +302,6 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             "optimizer": optimizer.state_dict(),
             "frames": frames,
             "iteration": iteration,
-            "best_eval": best,
             "best_eval_metrics": best_eval,
             "wall_time": wall,
             "eval_time": eval_clock.seconds,
@@ -372,8 +373,8 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
                 final_eval["time"] = eval_clock.last
                 logger.log("eval", {"iteration": iteration, **final_eval}, frames)
                 postfix["eval_return"] = f"{final_eval['return_mean']:.2f}"
-                if final_eval["return_mean"] > best:
-                    best, best_eval = final_eval["return_mean"], {"frames": frames, **final_eval}
+                if selection_key(final_eval, headline) > selection_key(best_eval, headline):
+                    best_eval = {"frames": frames, **final_eval}
                     checkpoint(LATEST, wall)  # first: best.pt is never newer than latest.pt
                     checkpoint(BEST, wall)
             interval_due = time.perf_counter() - last_ckpt >= 60 * cfg.checkpoint.interval_minutes

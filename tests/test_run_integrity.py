@@ -19,6 +19,7 @@ from helpers import TINY, compose_cfg
 from roto_trl.train import train
 from roto_trl.trainers.checkpoint import load_checkpoint, save_checkpoint
 from roto_trl.trainers.errors import RunInUse, WriteError
+from roto_trl.trainers.evaluation import selection_key
 from roto_trl.trainers.loggers import MetricLogger, read_csv, truncate_csv
 from roto_trl.trainers.run_dir import RESUMABLE, reconcile_best
 from roto_trl.trainers.run_lock import RunLock
@@ -123,7 +124,9 @@ def test_resume_cuts_the_logs_back_to_the_checkpoint(tmp_path):
     assert frames_of(run / "eval.csv") == [0, 256, 512]
     latest, best = load_checkpoint(run), load_checkpoint(run / "checkpoints" / "best.pt")
     assert best["frames"] == latest["best_eval_metrics"]["frames"]
-    assert latest["best_eval"] == max(read_csv(run / "eval.csv")["return_mean"])
+    evals = read_csv(run / "eval.csv")
+    best_key = max(zip(evals["bounces_per_10s"], evals["return_mean"], strict=True))
+    assert selection_key(latest["best_eval_metrics"], "bounces_per_10s") == best_key
 
 
 def test_truncate_csv_keeps_rows_up_to_the_checkpoint(tmp_path):
@@ -137,7 +140,6 @@ def test_truncate_csv_keeps_rows_up_to_the_checkpoint(tmp_path):
 
 def _checkpoint(path: Path, frames: int, best_at: int | None) -> dict:
     state = {"agent": {}, "optimizer": {}, "config": {}, "frames": frames}
-    state["best_eval"] = -math.inf if best_at is None else 1.0
     state["best_eval_metrics"] = None if best_at is None else {"frames": best_at, "return_mean": 1.0}
     save_checkpoint(path, state)
     return state
@@ -149,13 +151,13 @@ def test_best_pt_is_made_to_agree_with_the_checkpoint(tmp_path):
     latest = _checkpoint(latest_path, 512, best_at=512)
     _checkpoint(best_path, 256, best_at=256)
     reconcile_best(tmp_path, latest)
-    assert load_checkpoint(best_path)["frames"] == 512 and latest["best_eval"] == 1.0
+    assert load_checkpoint(best_path)["frames"] == 512 and latest["best_eval_metrics"]["frames"] == 512
     # best.pt from iterations the resume discards: removed, its best forgotten
     latest = _checkpoint(latest_path, 512, best_at=256)
     _checkpoint(best_path, 768, best_at=768)
     reconcile_best(tmp_path, latest)
     assert not best_path.exists()
-    assert latest["best_eval"] == -math.inf and latest["best_eval_metrics"] is None
+    assert latest["best_eval_metrics"] is None
 
 
 # ---------------------------------------------------------------------------- 3. what resume may change

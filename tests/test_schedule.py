@@ -7,7 +7,7 @@ from helpers import TINY, compose_cfg
 from roto_trl.train import train
 from roto_trl.trainers.builders import agent_for_env, make_collector, make_eval_env, make_train_env
 from roto_trl.trainers.checkpoint import load_checkpoint
-from roto_trl.trainers.evaluation import evaluate
+from roto_trl.trainers.evaluation import evaluate, selection_key
 from roto_trl.trainers.progress import TrainingProgress, estimate_line, format_duration, time_to_budget
 from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due, evaluations_left
 
@@ -20,6 +20,17 @@ def test_evaluation_falls_on_the_first_iteration_past_each_multiple():
     assert evaluation_due(0, 5000, 5000) and not evaluation_due(5000, 9999, 5000)
     # the crossings still to come: from 3000 to a 12000 budget, 5000 and 10000
     assert evaluations_left(3000, 12000, 5000) == 2 == sum(evaluation_due(a, b, 5000) for a, b in steps[1:])
+
+
+def test_best_checkpoint_ranks_the_headline_metric_first_then_the_return():
+    # Find: 0.5 within 3 cm beats 0.25 whatever the returns; equal fractions fall to the return
+    near, far = {"reached_3cm": 0.5, "return_mean": 80.0}, {"reached_3cm": 0.25, "return_mean": 95.0}
+    assert selection_key(near, "reached_3cm") == (0.5, 80.0)
+    assert selection_key(near, "reached_3cm") > selection_key(far, "reached_3cm")
+    tied = {"reached_3cm": 0.5, "return_mean": 81.0}
+    assert selection_key(tied, "reached_3cm") > selection_key(near, "reached_3cm")
+    untrained = {"reached_3cm": 0.0, "return_mean": -5.0}
+    assert selection_key(None, "reached_3cm") < selection_key(untrained, "reached_3cm")
 
 
 def test_every_frames_is_read_and_the_old_interval_is_refused_with_its_equivalent():

@@ -22,8 +22,8 @@ import numpy as np
 
 from roto_trl.analysis.runs import Run, run_csv
 from roto_trl.analysis.table import frames_label
+from roto_trl.envs.factory import TASKS
 
-HEADLINE = {"bounce": "bounces_per_10s", "find": "reached_3cm", "baoding": "rotations_per_10s"}
 HOLD_FRACTION = 0.8
 TRAINING_METRIC = {
     "bounce": "episode/bounces",
@@ -90,7 +90,7 @@ class RunStability:
 def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
     """The run's row, with the training episodes at ``marks``; a ``ValueError`` naming the
     missing log otherwise."""
-    metric = HEADLINE[run.task]
+    metric = TASKS[run.task].HEADLINE_METRIC
     ev = run_csv(run, "eval.csv", "stability needs runs that have evaluated at least once")
     train = run_csv(run, "train.csv", "stability needs the training log")
     if metric not in ev:

@@ -79,6 +79,7 @@ class BaodingEnv(ShadowHandEnv):
     SCENE = SCENE
     CONFIG = BaodingConfig
     METRICS = ("rotations",)  # episode metrics reported in every step's output
+    HEADLINE_METRIC = "rotations_per_10s"
     STATE_NAMES = STATE_NAMES
 
     def __init__(self, num_envs: int, config: BaodingConfig | None = None, **kwargs):

@@ -68,6 +68,7 @@ class BounceEnv(ShadowHandEnv):
     SCENE = SCENE
     CONFIG = BounceConfig
     METRICS = ("bounces",)  # episode metrics reported in every step's output
+    HEADLINE_METRIC = "bounces_per_10s"
     STATE_NAMES = STATE_NAMES
 
     def __init__(self, num_envs: int, config: BounceConfig | None = None, **kwargs):

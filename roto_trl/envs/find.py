@@ -147,6 +147,7 @@ class FindEnv(RobotTaskEnv):
     VEL_SCALE = 0.33
     PROP_EXTRA = ("ee_pos", "ee_quat", "gripper_width")
     METRICS = ("object_distance", "find_time")
+    HEADLINE_METRIC = "reached_3cm"  # fraction of episodes that came within 3 cm
     STATE_NAMES = STATE_NAMES
     CONFIG = FindConfig
 

@@ -152,12 +152,15 @@ class RobotTaskEnv(BatchedMujocoEnv):
         VEL_SCALE: factor on joint velocities in the policy input.
         PROP_EXTRA: entries appended to the proprioception after last action, angles, velocities.
         METRICS: episode metrics reported in every step's output.
+        HEADLINE_METRIC: the physical metric (a key of :meth:`physical_metrics`) that the
+            results table reports and that picks a run's best checkpoint.
         STATE_NAMES: the elements of the privileged ``state`` output, in order.
         CONFIG: the task's config dataclass.
     """
 
     SCENE: ClassVar[str]
     ROBOT: ClassVar[str]
+    HEADLINE_METRIC: ClassVar[str]
     N_JOINTS: ClassVar[int]
     SENSORS: ClassVar[tuple[str, ...]]
     DEFAULT_POSE: ClassVar[dict[str, float]]

@@ -5,7 +5,8 @@ A checkpoint is one ``torch.save`` dict:
                        its learning rate, which ``agent.lr_schedule=kl_adaptive`` changes)
     aux                with an SSL objective: its loss (auxiliary networks, target encoder)
                        and its optimiser (``AuxiliaryUpdate.state_dict``)
-    frames, iteration  progress counters; best_eval (best evaluation return so far)
+    frames, iteration  progress counters; best_eval_metrics (the evaluation best.pt holds,
+                       with its ``frames``; None before the first)
     rng                torch, numpy and the training env's reset generator
     config             the run's resolved config (a plain dict)
 """

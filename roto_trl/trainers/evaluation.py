@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -113,3 +114,13 @@ def evaluate(env: TransformedEnv, agent: Agent, seed: int) -> dict[str, float]:
     result.update({name: float(v.mean()) for name, v in episodes.final.items()})
     result.update(env.base_env.physical_metrics(episodes.final))
     return result
+
+
+def selection_key(result: dict[str, float] | None, headline: str) -> tuple[float, float]:
+    """How a run ranks an evaluation ``result`` for its best checkpoint: the task's headline
+    metric first (Find's fraction within 3 cm, bounces or rotations per 10 s), the return to
+    break ties (32 Find episodes give the fraction in steps of 1/32, and an untrained policy
+    scores 0 on every task); ``(-inf, -inf)`` for no evaluation yet."""
+    if result is None:
+        return (-math.inf, -math.inf)
+    return (float(result[headline]), float(result["return_mean"]))

@@ -4,12 +4,12 @@
   given with ``resume=`` (to extend the budget), any other override is a one-line error.
 * :func:`finished_reason`: a run that reached its budget is left as it is.
 * :func:`rewind`: the logs are cut back to the checkpoint's frame count and ``best.pt`` is made
-  to agree with the checkpoint's ``best_eval``, so a resumed run reads as one uninterrupted run.
+  to agree with the checkpoint's ``best_eval_metrics``, so a resumed run reads as one
+  uninterrupted run.
 """
 
 from __future__ import annotations
 
-import math
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
@@ -68,7 +68,7 @@ def rewind(run_dir: Path, state: dict[str, Any]) -> dict[str, int]:
 
 
 def reconcile_best(ckpt_dir: Path, latest: dict[str, Any]) -> None:
-    """Make ``best.pt`` the checkpoint that ``latest``'s ``best_eval`` describes.
+    """Make ``best.pt`` the checkpoint that ``latest``'s ``best_eval_metrics`` describes.
 
     Training writes ``latest.pt`` before ``best.pt`` at a new best, so the two can disagree only
     when a kill fell between the two writes (``best.pt`` then is older and the best policy is
@@ -85,4 +85,4 @@ def reconcile_best(ckpt_dir: Path, latest: dict[str, Any]) -> None:
         shutil.copyfile(ckpt_dir / LATEST, path)
     else:
         path.unlink(missing_ok=True)
-        latest["best_eval"], latest["best_eval_metrics"] = -math.inf, None
+        latest["best_eval_metrics"] = None
