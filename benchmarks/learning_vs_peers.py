@@ -7,7 +7,11 @@ with ``--num-envs`` worlds and any extra ``key=value`` overrides for ours):
            on our Gymnasium interface (needs ``pip install -e '.[bench]'``)
 At each mark it prints the task's episode metric (bounces, rotations, ...) averaged over the
 training episodes that ended in the ``--window`` frames before the mark, and each trainer's
-frames/s (training only for ours: its ``fps`` column).
+frames/s (training only for ours: its ``fps`` column). Then each trainer's final policy plays
+``--eval-episodes`` deterministic episodes (our evaluation seed, one per fresh world) with the
+Gaussian's mean and with the applied mean (the mean of the env-clipped action, our default), so
+a controller that peaks and falls back shows as it does in our own runs. While rsl_rl trains, a
+line every tenth of the budget gives its frames, frames/s, time left and training episodes.
 
     python benchmarks/learning_vs_peers.py --exp bounce_ppo --num-envs 256 --frames 1000000
     python benchmarks/learning_vs_peers.py --exp bounce_ppo --marks 300k,1M agent.lr_schedule=kl_adaptive
@@ -31,13 +35,18 @@ from pathlib import Path
 import numpy as np
 import torch
 from hydra import compose, initialize_config_dir
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
+from roto_trl.analysis.checkpoint_eval import evaluate_checkpoint, load_run
 from roto_trl.analysis.stability import training_at
 from roto_trl.analysis.table import parse_frames
+from roto_trl.envs.factory import TASKS
+from roto_trl.trainers.builders import eval_seed
 from roto_trl.utils.resources import resource_dir
 
 TRAIN = Path(__file__).resolve().parent.parent / "roto_trl" / "train.py"
+PROGRESS_LINES = 10  # rsl_rl's progress lines over its budget
+FINAL_ACTIONS = ("gaussian_mean", "applied_mean")  # the final policies' deterministic actions
 
 
 def frames_arg(text: str) -> int:
@@ -72,7 +81,9 @@ def ours(args, overrides: list[str], out: Path) -> tuple[list[tuple[int, float, 
         *overrides,
     ]
     print("$", " ".join(command), flush=True)
-    subprocess.run(command, check=True)
+    done = subprocess.run(command)
+    if done.returncode != 0:
+        sys.exit(f"learning_vs_peers: our trainer stopped with exit code {done.returncode} (see above)")
     return ended_episodes(run_dir, args.metric)
 
 
@@ -90,12 +101,18 @@ def ended_episodes(run_dir: Path, metric_name: str) -> tuple[list[tuple[int, flo
     return episodes, sum(fps) / len(fps)
 
 
-def rsl_rl(args, out: Path) -> tuple[list[tuple[int, float, float]], float]:
-    """Train rsl_rl's PPO for the same frames; its ended episodes and frames/s."""
-    from peers import rsl_rl_runner  # benchmarks/peers.py
+def ours_final(args, out: Path, action: str) -> dict[str, float]:
+    """The physical metrics of our run's final policy (``latest.pt``) with ``action``."""
+    run_dir = args.ours_run if args.ours_run is not None else out / "ours"
+    cfg, state, _ = load_run(run_dir, "latest")
+    summary, _ = evaluate_checkpoint(cfg, state, args.eval_episodes, eval_seed(cfg), policy=action)
+    return summary["physical"]
 
+
+def peer_config(args) -> DictConfig:
+    """The experiment's config as the peer runs it: its worlds, seed and physics threads."""
     with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
-        cfg = compose(
+        return compose(
             "train",
             overrides=[
                 f"+exp={args.exp}",
@@ -104,16 +121,35 @@ def rsl_rl(args, out: Path) -> tuple[list[tuple[int, float, float]], float]:
                 *threads_overrides(args.threads)[1:],
             ],
         )
+
+
+def rsl_rl(args, cfg: DictConfig) -> tuple[list[tuple[int, float, float]], float, dict[str, dict]]:
+    """Train rsl_rl's PPO for the same frames; its ended episodes, frames/s and the final
+    policy's physical metrics per deterministic action."""
+    from peers import rsl_rl_evaluate, rsl_rl_runner  # benchmarks/peers.py
+
     if args.threads:
         torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     runner, env = rsl_rl_runner(cfg)
     iterations = -(-args.frames // (int(cfg.agent.rollout_len) * args.num_envs))
+    chunk = -(-iterations // PROGRESS_LINES)
     start = time.perf_counter()
-    runner.learn(iterations)
-    elapsed = time.perf_counter() - start
+    for done in range(0, iterations, chunk):
+        runner.learn(min(chunk, iterations - done))
+        elapsed = time.perf_counter() - start
+        recent = [v for end, v in env.episodes if end > env.frames - args.window]
+        metric = f"{sum(recent) / len(recent):.2f}" if recent else "-"
+        budget = iterations * env.num_envs * int(cfg.agent.rollout_len)
+        left = elapsed / env.frames * max(0, budget - env.frames)
+        print(
+            f"rsl_rl: {env.frames:,} frames, {env.frames / elapsed:,.0f} frames/s, about "
+            f"{left / 60:.0f} min left; training episodes' {args.metric}: {metric}",
+            flush=True,
+        )
     env.envs.close()
-    return [(end, value, 1.0) for end, value in env.episodes], env.frames / elapsed
+    finals = {a: rsl_rl_evaluate(cfg, runner, args.eval_episodes, eval_seed(cfg), a) for a in FINAL_ACTIONS}
+    return [(end, value, 1.0) for end, value in env.episodes], env.frames / elapsed, finals
 
 
 def main() -> None:
@@ -128,6 +164,7 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=None, help="default runs/benchmarks/learning/<time>")
     parser.add_argument("--threads", type=int, default=None, help="torch and physics threads of each")
     parser.add_argument("--ours-run", type=Path, default=None, help="a finished run of ours to compare")
+    parser.add_argument("--eval-episodes", type=int, default=100, help="episodes of each final policy")
     args, overrides = parser.parse_known_args()
     if args.ours_run is not None:
         if not (args.ours_run / "train.csv").is_file():
@@ -139,15 +176,19 @@ def main() -> None:
     bad = [a for a in overrides if "=" not in a or a.startswith("-")]
     if bad:
         parser.error(f"unrecognized arguments: {' '.join(bad)} (extra overrides are key=value)")
+    if args.eval_episodes < 1:
+        parser.error(f"--eval-episodes must be at least 1, got {args.eval_episodes}")
     marks = parse_frames(args.marks)
     if max(marks) > args.frames:
         parser.error(f"--marks {args.marks} go past --frames {args.frames:,}")
     out = args.out or Path("runs/benchmarks/learning") / f"{datetime.now():%Y%m%d-%H%M%S}"
     out.mkdir(parents=True, exist_ok=True)
 
+    cfg = peer_config(args)
     results = {"ours": ours(args, overrides, out)}
+    finals = {"ours": {a: ours_final(args, out, a) for a in FINAL_ACTIONS}}
     try:
-        results["rsl_rl"] = rsl_rl(args, out)
+        *results["rsl_rl"], finals["rsl_rl"] = rsl_rl(args, cfg)
     except ImportError:
         print("rsl_rl is not installed (pip install -e '.[bench]'): ours alone", flush=True)
 
@@ -160,6 +201,11 @@ def main() -> None:
         cells = training_at(ends, values, weights, marks, args.window, until=args.frames)
         text = "".join(f"{'-':>12}" if math.isnan(c) else f"{c:>12.2f}" for c in cells)
         print(f"{name:<8}{text}{fps:>10,.0f}")
+    headline = TASKS[cfg.env.task].HEADLINE_METRIC
+    print(f"\nfinal policy, {args.eval_episodes} deterministic episodes: {headline}")
+    print(f"{'trainer':<8}" + "".join(f"{a:>16}" for a in FINAL_ACTIONS))
+    for name, by_action in finals.items():
+        print(f"{name:<8}" + "".join(f"{by_action[a][headline]:>16.2f}" for a in FINAL_ACTIONS))
     print(f"runs: {out}")
 
 

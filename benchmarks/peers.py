@@ -9,9 +9,11 @@ iterations after one warm-up. Imported only when the peer is installed (``.[benc
 
 from __future__ import annotations
 
+import math
 import time
 
 import gymnasium
+import numpy as np
 import torch
 
 from roto_trl.envs.registration import ENV_IDS
@@ -145,8 +147,7 @@ def rsl_rl_runner(cfg, log_dir: str | None = None):
             self._obs = self._tensordict(envs.reset(seed=int(cfg.seed))[0])
 
         def _tensordict(self, obs) -> TensorDict:
-            flat = torch.cat([torch.as_tensor(obs[k]) for k in ("prop", "tactile")], dim=-1).float()
-            return TensorDict({"policy": flat}, batch_size=[self.num_envs])
+            return TensorDict({"policy": flat_observation(obs)}, batch_size=[self.num_envs])
 
         def get_observations(self) -> TensorDict:
             return self._obs
@@ -191,6 +192,52 @@ def rsl_rl_runner(cfg, log_dir: str | None = None):
     }
     env = GymnasiumVecEnv(_vec_env(cfg))
     return OnPolicyRunner(env, train_cfg, log_dir=log_dir, device="cpu"), env
+
+
+def flat_observation(obs: dict) -> torch.Tensor:
+    """Our Gymnasium observation (``prop``, ``tactile``: ``[E, ...]``) as the peers' flat input
+    ``[E, D]`` float32."""
+    return torch.cat([torch.as_tensor(obs[k]) for k in ("prop", "tactile")], dim=-1).float()
+
+
+@torch.no_grad()
+def rsl_rl_evaluate(cfg, runner, episodes: int, seed: int, action: str) -> dict[str, float]:
+    """The task's physical metrics (``bounces_per_10s``, ...) of rsl_rl's trained policy: one
+    episode in each of ``episodes`` fresh worlds of our Gymnasium env reset with ``seed``.
+
+    ``action`` is the deterministic action: ``gaussian_mean`` (rsl_rl's inference output, clipped
+    by the env) or ``applied_mean`` (E[clip(a)] under its Gaussian, our default:
+    ``roto_trl.modules.distributions``). An episode's metrics are those of its first ending.
+    """
+    from tensordict import TensorDict
+
+    from roto_trl.modules.distributions import DETERMINISTIC_ACTIONS, clipped_normal_mean
+
+    if action not in DETERMINISTIC_ACTIONS:
+        raise ValueError(f"action={action!r}: choose one of {DETERMINISTIC_ACTIONS}")
+    policy = runner.get_inference_policy()
+    envs = gymnasium.make_vec(ENV_IDS[cfg.env.task], num_envs=episodes, **dict(cfg.env.overrides or {}))
+    base = envs.unwrapped.env.base_env
+    columns = base.metric_columns()
+    final = {name: torch.full((episodes,), math.nan) for _, _, name in columns}
+    ended = torch.zeros(episodes, dtype=torch.bool)
+    obs, _ = envs.reset(seed=seed)
+    while not bool(ended.all()):
+        td = TensorDict({"policy": flat_observation(obs)}, batch_size=[episodes])
+        if action == "gaussian_mean":
+            act = policy(td)
+        else:
+            policy(td, stochastic_output=True)  # sets the distribution's mean and std
+            act = clipped_normal_mean(policy.output_mean, policy.output_std)
+        obs, _, _, _, info = envs.step(act.numpy())
+        for i, last in enumerate(info.get("final_info", ())):
+            if last is None or ended[i]:
+                continue
+            ended[i] = True
+            for key, column, name in columns:
+                final[name][i] = float(np.atleast_1d(last[key])[column])
+    envs.close()
+    return base.physical_metrics(final)
 
 
 def rsl_rl_fps(cfg, iterations: int) -> float:

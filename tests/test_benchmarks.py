@@ -28,7 +28,7 @@ def test_learning_vs_peers_trains_ours_then_reads_a_finished_run(tmp_path):
 
     tiny = [o for o in TINY if not o.startswith(("total_frames=", "env.num_envs=", "torch_threads="))]
     common = [sys.executable, str(BENCHMARKS / "learning_vs_peers.py"), "--frames", "512", "--threads", "1"]
-    common += ["--marks", "256,512", "--window", "512"]
+    common += ["--marks", "256,512", "--window", "512", "--eval-episodes", "4"]
     trained = subprocess.run(
         [*common, "--exp", "bounce_ppo", "--num-envs", "8", "--out", str(tmp_path), *tiny],
         capture_output=True,
@@ -47,6 +47,10 @@ def test_learning_vs_peers_trains_ours_then_reads_a_finished_run(tmp_path):
     rows = [line for line in again.stdout.splitlines() if line.startswith("ours")]
     assert rows == [line for line in trained.stdout.splitlines() if line.startswith("ours")]
     assert "bounce_ppo, 8 worlds, seed 0" in again.stdout  # the run's own config
+    # the final policy's deterministic episodes, with both actions (the same seed both times)
+    assert "final policy, 4 deterministic episodes: bounces_per_10s" in again.stdout
+    final = rows[-1].split()[1:]
+    assert len(final) == 2 and all(float(v) >= 0 for v in final)
     refused = subprocess.run(
         [*common, "--ours-run", str(tmp_path / "ours"), "agent.lr=1e-3"], capture_output=True, text=True
     )
