@@ -11,7 +11,9 @@ frames/s (training only for ours: its ``fps`` column). Then each trainer's final
 ``--eval-episodes`` deterministic episodes (our evaluation seed, one per fresh world) with the
 Gaussian's mean and with the applied mean (the mean of the env-clipped action, our default), so
 a controller that peaks and falls back shows as it does in our own runs. While rsl_rl trains, a
-line every tenth of the budget gives its frames, frames/s, time left and training episodes.
+line every tenth of the budget gives its frames, frames/s, time left, training episodes and its
+controller's score on ``--curve-episodes`` (32) deterministic episodes (also in ``rsl_rl_eval.csv``:
+rsl_rl's evaluation curve, beside our run's ``eval.csv``).
 
     python benchmarks/learning_vs_peers.py --exp bounce_ppo --num-envs 256 --frames 1000000
     python benchmarks/learning_vs_peers.py --exp bounce_ppo --marks 300k,1M agent.lr_schedule=kl_adaptive
@@ -123,33 +125,48 @@ def peer_config(args) -> DictConfig:
         )
 
 
-def rsl_rl(args, cfg: DictConfig) -> tuple[list[tuple[int, float, float]], float, dict[str, dict]]:
-    """Train rsl_rl's PPO for the same frames; its ended episodes, frames/s and the final
-    policy's physical metrics per deterministic action."""
+def rsl_rl(args, cfg: DictConfig, out: Path) -> tuple[list[tuple[int, float, float]], float, dict[str, dict]]:
+    """Train rsl_rl's PPO for the same frames; its ended episodes, training frames/s and the
+    final policy's physical metrics per deterministic action. Every tenth of the budget its
+    controller plays ``--curve-episodes`` deterministic episodes with each action, as our
+    training evaluations do: printed, and written to ``<out>/rsl_rl_eval.csv``."""
     from peers import rsl_rl_evaluate, rsl_rl_runner  # benchmarks/peers.py
 
     if args.threads:
         torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     runner, env = rsl_rl_runner(cfg)
+    headline = TASKS[cfg.env.task].HEADLINE_METRIC
     iterations = -(-args.frames // (int(cfg.agent.rollout_len) * args.num_envs))
+    budget = iterations * env.num_envs * int(cfg.agent.rollout_len)
     chunk = -(-iterations // PROGRESS_LINES)
-    start = time.perf_counter()
-    for done in range(0, iterations, chunk):
-        runner.learn(min(chunk, iterations - done))
-        elapsed = time.perf_counter() - start
-        recent = [v for end, v in env.episodes if end > env.frames - args.window]
-        metric = f"{sum(recent) / len(recent):.2f}" if recent else "-"
-        budget = iterations * env.num_envs * int(cfg.agent.rollout_len)
-        left = elapsed / env.frames * max(0, budget - env.frames)
-        print(
-            f"rsl_rl: {env.frames:,} frames, {env.frames / elapsed:,.0f} frames/s, about "
-            f"{left / 60:.0f} min left; training episodes' {args.metric}: {metric}",
-            flush=True,
-        )
+    train_s, start = 0.0, time.perf_counter()
+    with (out / "rsl_rl_eval.csv").open("w", newline="") as handle:
+        curve = csv.writer(handle)
+        curve.writerow(["frames", *(f"{headline}_{a}" for a in FINAL_ACTIONS)])
+        for done in range(0, iterations, chunk):
+            t0 = time.perf_counter()
+            runner.learn(min(chunk, iterations - done))
+            train_s += time.perf_counter() - t0
+            recent = [v for end, v in env.episodes if end > env.frames - args.window]
+            metric = f"{sum(recent) / len(recent):.2f}" if recent else "-"
+            scores = [
+                rsl_rl_evaluate(cfg, runner, args.curve_episodes, eval_seed(cfg), a)[headline]
+                for a in FINAL_ACTIONS
+            ]
+            curve.writerow([env.frames, *scores])
+            handle.flush()
+            left = (time.perf_counter() - start) / env.frames * max(0, budget - env.frames)
+            print(
+                f"rsl_rl: {env.frames:,} frames, {env.frames / train_s:,.0f} frames/s, about "
+                f"{left / 60:.0f} min left; training episodes' {args.metric}: {metric}; "
+                f"{headline} of {args.curve_episodes} deterministic episodes (Gaussian's / applied mean): "
+                f"{scores[0]:.2f} / {scores[1]:.2f}",
+                flush=True,
+            )
     env.envs.close()
     finals = {a: rsl_rl_evaluate(cfg, runner, args.eval_episodes, eval_seed(cfg), a) for a in FINAL_ACTIONS}
-    return [(end, value, 1.0) for end, value in env.episodes], env.frames / elapsed, finals
+    return [(end, value, 1.0) for end, value in env.episodes], env.frames / train_s, finals
 
 
 def main() -> None:
@@ -165,6 +182,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=None, help="torch and physics threads of each")
     parser.add_argument("--ours-run", type=Path, default=None, help="a finished run of ours to compare")
     parser.add_argument("--eval-episodes", type=int, default=100, help="episodes of each final policy")
+    parser.add_argument("--curve-episodes", type=int, default=32, help="rsl_rl's evaluations while it trains")
     args, overrides = parser.parse_known_args()
     if args.ours_run is not None:
         if not (args.ours_run / "train.csv").is_file():
@@ -176,8 +194,9 @@ def main() -> None:
     bad = [a for a in overrides if "=" not in a or a.startswith("-")]
     if bad:
         parser.error(f"unrecognized arguments: {' '.join(bad)} (extra overrides are key=value)")
-    if args.eval_episodes < 1:
-        parser.error(f"--eval-episodes must be at least 1, got {args.eval_episodes}")
+    for name in ("eval_episodes", "curve_episodes"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be at least 1, got {getattr(args, name)}")
     marks = parse_frames(args.marks)
     if max(marks) > args.frames:
         parser.error(f"--marks {args.marks} go past --frames {args.frames:,}")
@@ -188,7 +207,7 @@ def main() -> None:
     results = {"ours": ours(args, overrides, out)}
     finals = {"ours": {a: ours_final(args, out, a) for a in FINAL_ACTIONS}}
     try:
-        *results["rsl_rl"], finals["rsl_rl"] = rsl_rl(args, cfg)
+        *results["rsl_rl"], finals["rsl_rl"] = rsl_rl(args, cfg, out)
     except ImportError:
         print("rsl_rl is not installed (pip install -e '.[bench]'): ours alone", flush=True)
 

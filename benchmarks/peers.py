@@ -222,20 +222,21 @@ def rsl_rl_evaluate(cfg, runner, episodes: int, seed: int, action: str) -> dict[
     final = {name: torch.full((episodes,), math.nan) for _, _, name in columns}
     ended = torch.zeros(episodes, dtype=torch.bool)
     obs, _ = envs.reset(seed=seed)
-    while not bool(ended.all()):
-        td = TensorDict({"policy": flat_observation(obs)}, batch_size=[episodes])
-        if action == "gaussian_mean":
-            act = policy(td)
-        else:
-            policy(td, stochastic_output=True)  # sets the distribution's mean and std
-            act = clipped_normal_mean(policy.output_mean, policy.output_std)
-        obs, _, _, _, info = envs.step(act.numpy())
-        for i, last in enumerate(info.get("final_info", ())):
-            if last is None or ended[i]:
-                continue
-            ended[i] = True
-            for key, column, name in columns:
-                final[name][i] = float(np.atleast_1d(last[key])[column])
+    with torch.random.fork_rng():  # the samples drawn for the std leave training's stream alone
+        while not bool(ended.all()):
+            td = TensorDict({"policy": flat_observation(obs)}, batch_size=[episodes])
+            if action == "gaussian_mean":
+                act = policy(td)
+            else:
+                policy(td, stochastic_output=True)  # sets the distribution's mean and std
+                act = clipped_normal_mean(policy.output_mean, policy.output_std)
+            obs, _, _, _, info = envs.step(act.numpy())
+            for i, last in enumerate(info.get("final_info", ())):
+                if last is None or ended[i]:
+                    continue
+                ended[i] = True
+                for key, column, name in columns:
+                    final[name][i] = float(np.atleast_1d(last[key])[column])
     envs.close()
     return base.physical_metrics(final)
 

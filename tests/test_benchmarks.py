@@ -28,7 +28,7 @@ def test_learning_vs_peers_trains_ours_then_reads_a_finished_run(tmp_path):
 
     tiny = [o for o in TINY if not o.startswith(("total_frames=", "env.num_envs=", "torch_threads="))]
     common = [sys.executable, str(BENCHMARKS / "learning_vs_peers.py"), "--frames", "512", "--threads", "1"]
-    common += ["--marks", "256,512", "--window", "512", "--eval-episodes", "4"]
+    common += ["--marks", "256,512", "--window", "512", "--eval-episodes", "4", "--curve-episodes", "2"]
     trained = subprocess.run(
         [*common, "--exp", "bounce_ppo", "--num-envs", "8", "--out", str(tmp_path), *tiny],
         capture_output=True,
