@@ -15,6 +15,7 @@ import torch
 from helpers import TINY, compose_cfg
 from omegaconf import OmegaConf
 
+from roto_trl.modules.normalization import ValueNormalizer
 from roto_trl.train import EXIT_NON_FINITE, check_config, train
 from roto_trl.trainers.builders import agent_for_env, make_train_env
 from roto_trl.trainers.checkpoint import load_checkpoint
@@ -105,6 +106,20 @@ def test_same_seed_gives_identical_metrics(tmp_path):
         tables.append([{k: v for k, v in r.items() if not k.startswith(timing)} for r in table])
     assert tables[0] == tables[1]
     assert float(tables[0][0]["loss_critic"]) != 0.0
+
+
+def test_value_norm_off_trains_the_value_head_on_raw_returns(tmp_path):
+    norm = ValueNormalizer(enabled=False)
+    returns = torch.tensor([3.0, 40.0, -7.0])
+    norm.update(returns)
+    assert torch.equal(norm.normalize(returns), returns) and torch.equal(norm.denormalize(returns), returns)
+    counts = {}
+    for value_norm in ("true", "false"):
+        run = tmp_path / value_norm
+        train(compose_cfg(["+exp=bounce_ppo", *TINY, f"run_dir={run}", f"agent.value_norm={value_norm}"]))
+        counts[value_norm] = float(load_checkpoint(run)["agent"]["value_norm.count"])
+    # on: every return of the 256 frames counted; off: the statistics never move
+    assert counts == {"true": pytest.approx(256 + 1e-4), "false": pytest.approx(1e-4)}
 
 
 def test_cli_rejects_bad_overrides_with_clear_errors(tmp_path):

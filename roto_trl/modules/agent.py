@@ -49,6 +49,8 @@ class Agent(nn.Module):
         deterministic_action: the evaluation action, ``applied_mean`` (the mean of the clipped
             action the env applies) or ``gaussian_mean`` (skrl's, the authors'); see
             ``roto_trl.modules.distributions``.
+        value_norm: True: the value head learns returns normalised by running statistics
+            (``ValueNormalizer``, the authors' skrl setup); False: raw returns (rsl_rl's).
     """
 
     def __init__(
@@ -59,6 +61,7 @@ class Agent(nn.Module):
         shared_encoder: bool = True,
         init_log_std: float = 0.0,
         deterministic_action: str = DEFAULT_DETERMINISTIC_ACTION,
+        value_norm: bool = True,
     ) -> None:
         super().__init__()
         self.obs_keys = tuple(obs_keys)
@@ -66,7 +69,7 @@ class Agent(nn.Module):
         self.encoder = Encoder(obs_dim)
         self.policy_head = PolicyHead(self.encoder.latent_dim, n_actions, init_log_std)
         self.value_head = ValueHead(self.encoder.latent_dim)
-        self.value_norm = ValueNormalizer()
+        self.value_norm = ValueNormalizer(enabled=value_norm)
         # observation entries -> z: the encoder as the self-supervised losses take it
         self.common = TensorDictModule(self.encoder, in_keys=list(self.obs_keys), out_keys=[LATENT_KEY])
         self.actor_head = ProbabilisticActor(

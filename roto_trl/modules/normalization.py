@@ -32,24 +32,33 @@ class ValueNormalizer(nn.Module):
     """Running statistics of the value targets (returns), kept as buffers so checkpoints hold them.
 
     The value head predicts ``normalize(value)``; ``denormalize`` maps its output back to returns
-    for the advantage estimate (rl_games' value normalisation).
+    for the advantage estimate (rl_games' value normalisation). ``enabled=False`` (rsl_rl's way:
+    the value head predicts returns) makes both maps the identity and ``update`` a no-op; the
+    buffers stay, so a checkpoint has the same keys either way.
     """
 
-    def __init__(self, eps: float = 1e-5) -> None:
+    def __init__(self, eps: float = 1e-5, enabled: bool = True) -> None:
         super().__init__()
         self.eps = float(eps)
+        self.enabled = bool(enabled)
         self.register_buffer("mean", torch.zeros((), dtype=torch.float64))
         self.register_buffer("var", torch.ones((), dtype=torch.float64))
         self.register_buffer("count", torch.full((), 1e-4, dtype=torch.float64))
 
     @torch.no_grad()
     def update(self, returns: torch.Tensor) -> None:
+        if not self.enabled:
+            return
         self.mean, self.var, self.count = merge_moments(self.mean, self.var, self.count, returns.double())
 
     def normalize(self, value: torch.Tensor) -> torch.Tensor:
+        if not self.enabled:
+            return value
         std = (self.var + self.eps).sqrt()
         return ((value - self.mean) / std).to(value.dtype)
 
     def denormalize(self, value: torch.Tensor) -> torch.Tensor:
+        if not self.enabled:
+            return value
         std = (self.var + self.eps).sqrt()
         return (value * std + self.mean).to(value.dtype)

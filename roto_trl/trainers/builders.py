@@ -89,6 +89,7 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
         init_log_std=float(cfg.agent.get("init_log_std", 0.0)),
         # runs from before the option: the default, which changes no parameter
         deterministic_action=str(cfg.agent.get("deterministic_action", DEFAULT_DETERMINISTIC_ACTION)),
+        value_norm=bool(cfg.agent.get("value_norm", True)),  # runs from before the option: on
     )
     return agent.to(cfg.device)
 
