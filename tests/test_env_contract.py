@@ -125,6 +125,7 @@ def test_truncation_at_600_steps():
         (dict(task="bounce", num_envs=2, reward_scales={"rotation": 1.0}), "unknown reward term"),
         (dict(task="bounce", num_envs=2, action_ema=0.0), "action_ema must be in"),
         (dict(task="bounce", num_envs=2, substeps=0), "substeps must be a positive integer"),
+        (dict(task="find", num_envs=2, tolerances=[0.02, 0.01]), r"must include 0.03 \(3 cm"),
     ],
 )
 def test_bad_construction_gets_a_clear_error(kwargs, match):

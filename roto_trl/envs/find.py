@@ -46,6 +46,7 @@ PLATE_CENTRE = (0.5, 0.0)
 PLATE_HALF = 0.1  # the plate is 20 x 20 cm
 PLATE_TOP = 0.01
 SPHERE_RADIUS = 0.025
+HEADLINE_TOLERANCE = 0.03  # m: reached_3cm, the headline metric (FindEnv.HEADLINE_METRIC)
 SPHERE_LIFT = 0.0005  # the sphere hovers 0.5 mm above the plate so the two never touch
 DIST_REWARD_LENGTH = 0.1
 REWARD_SCALES = {"dist": 1.0}
@@ -110,6 +111,11 @@ class FindConfig(TaskConfig):
         self.tolerances = tuple(float(t) for t in self.tolerances)
         if not self.tolerances or min(self.tolerances) <= 0.0:
             raise ValueError(f"tolerances must be a non-empty list of distances > 0 m, got {self.tolerances}")
+        if HEADLINE_TOLERANCE not in self.tolerances:
+            raise ValueError(
+                f"tolerances {list(self.tolerances)} must include {HEADLINE_TOLERANCE} (3 cm: the "
+                "results table's metric, which also picks the best checkpoint); add it"
+            )
 
 
 def add_tcp_site(spec: mujoco.MjSpec) -> None:
