@@ -103,12 +103,15 @@ def ended_episodes(run_dir: Path, metric_name: str) -> tuple[list[tuple[int, flo
     return episodes, sum(fps) / len(fps)
 
 
-def ours_final(args, out: Path, action: str) -> dict[str, float]:
-    """The physical metrics of our run's final policy (``latest.pt``) with ``action``."""
+def ours_final(args, out: Path) -> dict[str, dict[str, float]]:
+    """The physical metrics of our run's final policy (``latest.pt``) with each of
+    ``FINAL_ACTIONS``."""
     run_dir = args.ours_run if args.ours_run is not None else out / "ours"
     cfg, state, _ = load_run(run_dir, "latest")
-    summary, _ = evaluate_checkpoint(cfg, state, args.eval_episodes, eval_seed(cfg), policy=action)
-    return summary["physical"]
+    return {
+        a: evaluate_checkpoint(cfg, state, args.eval_episodes, eval_seed(cfg), policy=a)[0]["physical"]
+        for a in FINAL_ACTIONS
+    }
 
 
 def peer_config(args) -> DictConfig:
@@ -125,7 +128,9 @@ def peer_config(args) -> DictConfig:
         )
 
 
-def rsl_rl(args, cfg: DictConfig, out: Path) -> tuple[list[tuple[int, float, float]], float, dict[str, dict]]:
+def rsl_rl(
+    args, cfg: DictConfig, out: Path, headline: str
+) -> tuple[list[tuple[int, float, float]], float, dict[str, dict]]:
     """Train rsl_rl's PPO for the same frames; its ended episodes, training frames/s and the
     final policy's physical metrics per deterministic action. Every tenth of the budget its
     controller plays ``--curve-episodes`` deterministic episodes with each action, as our
@@ -136,7 +141,6 @@ def rsl_rl(args, cfg: DictConfig, out: Path) -> tuple[list[tuple[int, float, flo
         torch.set_num_threads(args.threads)
     torch.manual_seed(args.seed)
     runner, env = rsl_rl_runner(cfg)
-    headline = TASKS[cfg.env.task].HEADLINE_METRIC
     iterations = -(-args.frames // (int(cfg.agent.rollout_len) * args.num_envs))
     budget = iterations * env.num_envs * int(cfg.agent.rollout_len)
     chunk = -(-iterations // PROGRESS_LINES)
@@ -204,10 +208,11 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
 
     cfg = peer_config(args)
+    headline = TASKS[cfg.env.task].HEADLINE_METRIC
     results = {"ours": ours(args, overrides, out)}
-    finals = {"ours": {a: ours_final(args, out, a) for a in FINAL_ACTIONS}}
+    finals = {"ours": ours_final(args, out)}
     try:
-        *results["rsl_rl"], finals["rsl_rl"] = rsl_rl(args, cfg, out)
+        *results["rsl_rl"], finals["rsl_rl"] = rsl_rl(args, cfg, out, headline)
     except ImportError:
         print("rsl_rl is not installed (pip install -e '.[bench]'): ours alone", flush=True)
 
@@ -220,7 +225,6 @@ def main() -> None:
         cells = training_at(ends, values, weights, marks, args.window, until=args.frames)
         text = "".join(f"{'-':>12}" if math.isnan(c) else f"{c:>12.2f}" for c in cells)
         print(f"{name:<8}{text}{fps:>10,.0f}")
-    headline = TASKS[cfg.env.task].HEADLINE_METRIC
     print(f"\nfinal policy, {args.eval_episodes} deterministic episodes: {headline}")
     print(f"{'trainer':<8}" + "".join(f"{a:>16}" for a in FINAL_ACTIONS))
     for name, by_action in finals.items():

@@ -1,4 +1,6 @@
-"""The peers of ``train_throughput.py``: skrl's and rsl_rl's PPO on our Gymnasium interface.
+"""The peers of ``train_throughput.py`` and ``learning_vs_peers.py``: skrl's and rsl_rl's PPO on
+our Gymnasium interface (and ``rsl_rl_evaluate``, rsl_rl's deterministic controller scored as
+ours is).
 
 Each runs the experiment's task, worlds and PPO values (R, mb, le, lr, gamma, lambda, clips,
 gradient clip) with our networks (``roto_trl.modules.networks``: encoder 1024-512-256 with
