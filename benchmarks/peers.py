@@ -4,7 +4,8 @@ ours is).
 
 Each runs the experiment's task, worlds and PPO values (R, mb, le, lr, gamma, lambda, clips,
 gradient clip) with our networks (``roto_trl.modules.networks``: encoder 1024-512-256 with
-LayerNorm + ELU, tanh-mean Gaussian policy head with state-independent log-std, value head) on
+LayerNorm + ELU, tanh-mean Gaussian policy head with state-independent log-std, value head; the
+critic's encoder sized as ``agent.critic_encoder_sizes`` when set) on
 ``gymnasium.make_vec("RoTO/<Task>-v0")``, and returns frames/s over ``iterations`` timed
 iterations after one warm-up. Imported only when the peer is installed (``.[bench]``).
 """
@@ -19,12 +20,17 @@ import numpy as np
 import torch
 
 from roto_trl.envs.registration import ENV_IDS
-from roto_trl.modules.networks import Encoder, PolicyHead, ValueHead
+from roto_trl.modules.networks import ENCODER_SIZES, Encoder, PolicyHead, ValueHead
 
 
 def _vec_env(cfg):
     overrides = dict(cfg.env.overrides or {})
     return gymnasium.make_vec(ENV_IDS[cfg.env.task], num_envs=int(cfg.env.num_envs), **overrides)
+
+
+def critic_sizes(cfg) -> tuple[int, ...]:
+    """The critic's hidden layers: ``agent.critic_encoder_sizes`` as ours has them, else ours."""
+    return tuple(cfg.agent.get("critic_encoder_sizes") or ENCODER_SIZES)
 
 
 def skrl_fps(cfg, iterations: int) -> float:
@@ -52,7 +58,7 @@ def skrl_fps(cfg, iterations: int) -> float:
                 self, observation_space=observation_space, action_space=action_space, device=device
             )
             DeterministicMixin.__init__(self)
-            self.encoder = Encoder(self.num_observations)
+            self.encoder = Encoder(self.num_observations, critic_sizes(cfg))
             self.head = ValueHead(self.encoder.latent_dim)
 
         def compute(self, inputs, role=""):
@@ -186,11 +192,11 @@ def rsl_rl_runner(cfg, log_dir: str | None = None):
         },
         "actor": {
             "class_name": "MLPModel",
-            "hidden_dims": [1024, 512, 256],
+            "hidden_dims": list(ENCODER_SIZES),
             "activation": "elu",
             "distribution_cfg": {"class_name": "GaussianDistribution"},
         },
-        "critic": {"class_name": "MLPModel", "hidden_dims": [1024, 512, 256], "activation": "elu"},
+        "critic": {"class_name": "MLPModel", "hidden_dims": list(critic_sizes(cfg)), "activation": "elu"},
     }
     env = GymnasiumVecEnv(_vec_env(cfg))
     return OnPolicyRunner(env, train_cfg, log_dir=log_dir, device="cpu"), env

@@ -17,12 +17,15 @@ cores), and ours / best peer. Goals: >= 0.9 of the serial limit, >= 1.0 of the b
 ``--fused`` adds a column: the bare update with the other Adam (``agent.fused_adam`` negated);
 ``--compile`` runs ours and the bare update with ``agent.compile=true``; ``--profile cpu`` measures
 the CPU recipe (``+profile=cpu``: separate critic, KL-adaptive rate, 8 minibatches; the peers
-take its minibatch count too) at each ``--num-envs``.
+take its minibatch count too) at each ``--num-envs``; ``--set KEY=VALUE ...`` adds Hydra overrides
+(the peers follow ``agent.critic_encoder_sizes``, see ``peers.py``).
 
     python benchmarks/train_throughput.py          # bounce_ppo and bounce_fd at 256 and 1024 worlds
     python benchmarks/train_throughput.py --exps bounce_ppo --num-envs 256 --iterations 2
     python benchmarks/train_throughput.py --exps baoding_ppo --num-envs 1024 --no-peers --fused
     python benchmarks/train_throughput.py --profile cpu --iterations 2   # the recipe a CPU user runs
+    python benchmarks/train_throughput.py --exps bounce_ppo --profile cpu \\
+        --set 'agent.critic_encoder_sizes=[256,128]'      # the recipe with a smaller critic
 """
 
 from __future__ import annotations
@@ -153,12 +156,21 @@ def main() -> None:
     parser.add_argument("--compile", action="store_true", help="agent.compile=true (torch.compile)")
     profiles = sorted(p.stem for p in resource_dir("conf").joinpath("profile").glob("*.yaml"))
     parser.add_argument("--profile", choices=profiles, help="a conf/profile on top of each exp (+profile=)")
+    parser.add_argument(
+        "--set",
+        nargs="+",
+        default=[],
+        metavar="KEY=VALUE",
+        help="more overrides for every exp, e.g. --set agent.critic_encoder_sizes=[256,128]",
+    )
     args = parser.parse_args()
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     print(
         f"torch {torch.__version__}, {torch.get_num_threads()} torch threads, "
         f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}, {args.iterations} timed iterations, "
-        f"profile {args.profile or 'none (the exps as the paper has them)'}; frames/s"
+        f"profile {args.profile or 'none (the exps as the paper has them)'}"
+        + (f", overrides {' '.join(args.set)}" if args.set else "")
+        + "; frames/s"
     )
     header = (
         f"{'exp':<11} {'N':>5} {'ours':>7} {'sim':>7} {'update':>7} {'limit':>7} {'ours/lim':>8} "
@@ -173,6 +185,7 @@ def main() -> None:
                 overrides = [f"+exp={exp}"] + ([f"+profile={args.profile}"] if args.profile else [])
                 overrides += [f"env.num_envs={n}", "logger.backend=none"]
                 overrides += ["agent.compile=true"] if args.compile else []
+                overrides += args.set
                 cfg = compose("train", overrides=overrides)
                 sim_env = make_train_env(cfg)
                 sim = sim_only(sim_env, int(cfg.agent.rollout_len) * 2)

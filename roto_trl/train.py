@@ -38,6 +38,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.analysis.plots import plot_run
 from roto_trl.envs.factory import task_config
+from roto_trl.modules.agent import checked_critic_sizes
 from roto_trl.trainers.builders import (
     agent_for_env,
     compile_agent,
@@ -105,6 +106,7 @@ def check_config(cfg: DictConfig) -> None:
     if isinstance(cfg.seed, bool) or not isinstance(cfg.seed, int):
         raise ValueError(f"seed must be an integer, got {cfg.seed!r}")
     task_config(cfg.env.task, **OmegaConf.to_container(cfg.env.overrides))  # names a bad env.overrides key
+    checked_critic_sizes(cfg.agent.get("critic_encoder_sizes"), bool(cfg.agent.shared_encoder))
 
 
 def check_device(device) -> None:

@@ -8,11 +8,13 @@ import torch
 from helpers import compose_cfg
 from tensordict import TensorDict
 
+from roto_trl import make_env
 from roto_trl.data.memory import AuxMemory
 from roto_trl.modules.agent import Agent
 from roto_trl.objectives import TactileForwardDynamicsLoss
+from roto_trl.train import check_config
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
-from roto_trl.trainers.builders import make_lr_schedule, make_optimizer, make_ppo_loss
+from roto_trl.trainers.builders import agent_for_env, make_lr_schedule, make_optimizer, make_ppo_loss
 from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3
 from roto_trl.trainers.ppo import minibatch_loss
 
@@ -159,6 +161,29 @@ def test_a_separate_critic_keeps_the_value_loss_out_of_the_policy_encoder():
     ids = {id(p) for g in make_optimizer(cfg, agent).param_groups for p in g["params"]}
     assert {id(p) for p in agent.value_encoder.parameters()} <= ids
     assert agent.common.module is agent.encoder
+
+
+def test_a_smaller_critic_from_the_config_and_the_same_parameter_order():
+    cfg = compose_cfg(["+exp=bounce_ppo", "+profile=cpu", "agent.critic_encoder_sizes=[64,32]"])
+    env = make_env("bounce", 2)
+    small = agent_for_env(cfg, env)
+    env.close()
+    obs_dim = small.encoder.obs_dim
+    layers = [m for m in small.value_encoder.net if isinstance(m, torch.nn.Linear)]
+    assert [(m.in_features, m.out_features) for m in layers] == [(obs_dim, 64), (64, 32)]
+    assert small.value_head.net[0][0].in_features == 32  # the head reads the critic's latent
+    tiny = Agent(("prop", "tactile"), P + T, A, shared_encoder=False, critic_encoder_sizes=[8])
+    assert tiny.value(ppo_minibatch(tiny))["state_value"].shape == (16, 1)
+    # default sizes: the parameters in the order a checkpoint's Adam state was saved in (policy
+    # encoder, policy head, value head, then the critic's encoder), so old runs resume
+    default = Agent(("prop", "tactile"), P + T, A, shared_encoder=False)
+    names = [n.split(".")[0] for n, _ in default.named_parameters()]
+    assert list(dict.fromkeys(names)) == ["encoder", "policy_head", "value_head", "value_encoder"]
+    with pytest.raises(ValueError, match="shared_encoder=false"):  # before the run directory is made
+        check_config(compose_cfg(["+exp=bounce_ppo", "agent.critic_encoder_sizes=[64]"]))
+    for bad in ([], [64, 0], 64, ["a"]):
+        with pytest.raises(ValueError, match="list of positive integers"):
+            Agent(("prop",), P, A, shared_encoder=False, critic_encoder_sizes=bad)
 
 
 @pytest.mark.parametrize("exp", ["find_fd", "bounce_ppo", "baoding_fd_mem"])

@@ -18,10 +18,26 @@ from torch import nn
 from torchrl.modules import ActorValueOperator, ProbabilisticActor, ValueOperator
 
 from roto_trl.modules.distributions import DEFAULT_DETERMINISTIC_ACTION, policy_distribution
-from roto_trl.modules.networks import Encoder, PolicyHead, ValueHead
+from roto_trl.modules.networks import ENCODER_SIZES, Encoder, PolicyHead, ValueHead
 from roto_trl.modules.normalization import ValueNormalizer
 
 LATENT_KEY = "z"
+
+
+def checked_critic_sizes(sizes, shared_encoder: bool) -> tuple[int, ...]:
+    """``critic_encoder_sizes`` as a tuple (None: ``ENCODER_SIZES``), or a one-line error."""
+    if sizes is None:
+        return ENCODER_SIZES
+    if shared_encoder:
+        raise ValueError(
+            "critic_encoder_sizes sizes the critic's own encoder: give it with shared_encoder=false, "
+            "or leave it null"
+        )
+    if isinstance(sizes, int | str) or not len(sizes) or not all(type(s) is int and s > 0 for s in sizes):
+        raise ValueError(
+            f"critic_encoder_sizes must be a list of positive integers such as [256, 128], got {sizes!r}"
+        )
+    return tuple(sizes)
 
 
 class Critic(nn.Module):
@@ -43,14 +59,17 @@ class Agent(nn.Module):
         obs_dim: their total size (e.g. ``k * (P + T)``).
         n_actions: action size.
         shared_encoder: True (the paper): one encoder feeds the policy and the value head.
-            False: the critic has its own encoder of the same size, trained by the value loss
-            only; the policy's encoder is the one the SSL objectives train (``common``).
+            False: the critic has its own encoder (``critic_encoder_sizes``), trained by the
+            value loss only; the policy's encoder is the one the SSL objectives train (``common``).
         init_log_std: the policy's initial log standard deviation (0: std 1, the paper's).
         deterministic_action: the evaluation action, ``applied_mean`` (the mean of the clipped
             action the env applies) or ``gaussian_mean`` (skrl's, the authors'); see
             ``roto_trl.modules.distributions``.
         value_norm: True: the value head learns returns normalised by running statistics
             (``ValueNormalizer``, the authors' skrl setup); False: raw returns (rsl_rl's).
+        critic_encoder_sizes: the layer sizes of the critic's own encoder (``shared_encoder``
+            False only); None: the policy encoder's ``ENCODER_SIZES``. A smaller critic makes
+            the update cheaper: the critic's encoder is half of it at the default sizes.
     """
 
     def __init__(
@@ -62,13 +81,18 @@ class Agent(nn.Module):
         init_log_std: float = 0.0,
         deterministic_action: str = DEFAULT_DETERMINISTIC_ACTION,
         value_norm: bool = True,
+        critic_encoder_sizes: tuple[int, ...] | None = None,
     ) -> None:
         super().__init__()
+        critic_encoder_sizes = checked_critic_sizes(critic_encoder_sizes, shared_encoder)
         self.obs_keys = tuple(obs_keys)
         self.n_actions = int(n_actions)
         self.encoder = Encoder(obs_dim)
         self.policy_head = PolicyHead(self.encoder.latent_dim, n_actions, init_log_std)
-        self.value_head = ValueHead(self.encoder.latent_dim)
+        # the critic's own encoder is registered after the policy's modules, as before the option,
+        # so that the optimiser's parameter order (and a resumed run's Adam state) is unchanged
+        value_encoder = None if shared_encoder else Encoder(obs_dim, critic_encoder_sizes)
+        self.value_head = ValueHead((self.encoder if shared_encoder else value_encoder).latent_dim)
         self.value_norm = ValueNormalizer(enabled=value_norm)
         # observation entries -> z: the encoder as the self-supervised losses take it
         self.common = TensorDictModule(self.encoder, in_keys=list(self.obs_keys), out_keys=[LATENT_KEY])
@@ -85,8 +109,8 @@ class Agent(nn.Module):
             self.actor_critic = ActorValueOperator(self.common, self.actor_head, self.critic_head)
             self.policy = self.actor_critic.get_policy_operator()
             self.value = self.actor_critic.get_value_operator()
-        else:  # the critic has an encoder of its own, of the same size; SSL trains the policy's
-            self.value_encoder = Encoder(obs_dim)
+        else:  # the critic has an encoder of its own; SSL trains the policy's
+            self.value_encoder = value_encoder
             self.critic_head = ValueOperator(
                 Critic(self.value_encoder, self.value_head), in_keys=list(self.obs_keys)
             )

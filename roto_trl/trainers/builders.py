@@ -90,6 +90,7 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
         # runs from before the option: the default, which changes no parameter
         deterministic_action=str(cfg.agent.get("deterministic_action", DEFAULT_DETERMINISTIC_ACTION)),
         value_norm=bool(cfg.agent.get("value_norm", True)),  # runs from before the option: on
+        critic_encoder_sizes=cfg.agent.get("critic_encoder_sizes"),  # null: the policy encoder's
     )
     return agent.to(cfg.device)
 
