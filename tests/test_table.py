@@ -167,13 +167,15 @@ def test_stability_rows_by_hand(tmp_path, capsys):
     # the log ends before 300
     assert float(row["training_100"]) == 1.0 and float(row["training_200"]) == 5.0
     assert math.isnan(float(row["training_300"]))
+    # before the best evaluation (100) and the final one (200): the same windows
+    assert (float(row["training_at_best"]), float(row["training_at_final"])) == (1.0, 5.0)
     assert (row["best"], row["best_frames"], row["final"]) == ("10.0", "100", "7.0")
     assert float(row["held"]) == pytest.approx(0.7)  # under 0.8 of the best: flagged
     assert (float(row["kl_median"]), float(row["clip_median"])) == (0.02, 0.2)
     assert float(row["frames_per_s"]) == 1050
     assert (row["checkpoint_value"], row["checkpoint_episodes"]) == ("9.5", "100")
     printed = capsys.readouterr().out
-    assert "0.70 (fell back)" in printed and "episode/bounces: 1.00 / 5.00 / –" in printed
+    assert "0.70 (fell back) | 1.00 / 5.00 |" in printed and "episode/bounces: 1.00 / 5.00 / –" in printed
 
 
 def test_training_windows_by_hand():

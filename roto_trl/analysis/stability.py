@@ -9,7 +9,10 @@ best checkpoint for the results table) adds its headline value and episode count
 
 The training episodes (the stochastic policy) give a second view at chosen frame marks: the mean
 of the task's episode metric (``TRAINING_METRIC``) over the episodes that ended in the
-``TRAINING_WINDOW`` frames before each mark, weighted by how many ended in each iteration.
+``TRAINING_WINDOW`` frames before each mark, weighted by how many ended in each iteration; and
+the same mean before the best and before the final evaluation, which tells a policy that fell
+back (both views drop) from a deterministic controller that fell back while the policy PPO
+trains held (the training episodes do not drop).
 """
 
 from __future__ import annotations
@@ -80,6 +83,8 @@ class RunStability:
     checkpoint_episodes: int | None = None
     training_metric: str = ""
     training: dict[int, float] | None = None  # mark (frames) -> training episodes' mean
+    training_at_best: float = math.nan  # training episodes' mean before the best evaluation
+    training_at_final: float = math.nan  # ... before the final evaluation
 
     @property
     def held(self) -> float:
@@ -112,7 +117,11 @@ def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
     )
     if row.training_metric in train and "episodes" in train:
         columns = (np.asarray(train[k], dtype=float) for k in ("frames", row.training_metric, "episodes"))
-        row.training = dict(zip(marks, training_at(*columns, marks), strict=True))
+        frames, values, episodes = columns
+        row.training = dict(zip(marks, training_at(frames, values, episodes, marks), strict=True))
+        row.training_at_best, row.training_at_final = training_at(
+            frames, values, episodes, [row.best_frames, row.frames]
+        )
     checkpoint = run.path / "eval.json"
     if checkpoint.is_file():
         result = json.loads(checkpoint.read_text())
@@ -132,9 +141,10 @@ def stability_markdown(rows: list[RunStability], marks=DEFAULT_MARKS) -> str:
     at = " / ".join(frames_label(m) for m in marks)
     header = (
         f"| run | seed | training episodes at {at} | metric | frames | best (at) | final | final / best"
-        " | best checkpoint (episodes) | median KL | median clip | frames/s |"
+        " | training episodes before best / final eval | best checkpoint (episodes) | median KL"
+        " | median clip | frames/s |"
     )
-    lines = [header, "|" + "---|" * 12]
+    lines = [header, "|" + "---|" * 13]
     for r in rows:
         checkpoint = "–"
         if r.checkpoint_value is not None:
@@ -144,8 +154,9 @@ def stability_markdown(rows: list[RunStability], marks=DEFAULT_MARKS) -> str:
         lines.append(
             f"| {r.label} | {r.seed} | {r.training_metric}: {training} | {r.metric} | {r.frames:,} | "
             f"{r.best:.3g} ({r.best_frames:,}) | "
-            f"{r.final:.3g} | {r.held:.2f}{flag} | {checkpoint} | {r.kl_median:.3g} | "
-            f"{r.clip_median:.2f} | {r.frames_per_s:,.0f} |"
+            f"{r.final:.3g} | {r.held:.2f}{flag} | "
+            f"{_cell(r.training_at_best)} / {_cell(r.training_at_final)} | {checkpoint} | "
+            f"{r.kl_median:.3g} | {r.clip_median:.2f} | {r.frames_per_s:,.0f} |"
         )
     return "\n".join(lines) + "\n"
 
