@@ -3,11 +3,13 @@ our Gymnasium interface (and ``rsl_rl_evaluate``, rsl_rl's deterministic control
 ours is).
 
 Each runs the experiment's task, worlds and PPO values (R, mb, le, lr, gamma, lambda, clips,
-gradient clip) with our networks (``roto_trl.modules.networks``: encoder 1024-512-256 with
-LayerNorm + ELU, tanh-mean Gaussian policy head with state-independent log-std, value head; the
-critic's encoder sized as ``agent.critic_encoder_sizes`` when set) on
-``gymnasium.make_vec("RoTO/<Task>-v0")``, and returns frames/s over ``iterations`` timed
-iterations after one warm-up. Imported only when the peer is installed (``.[bench]``).
+gradient clip) on ``gymnasium.make_vec("RoTO/<Task>-v0")`` and returns frames/s over
+``iterations`` timed iterations after one warm-up. skrl runs our networks
+(``roto_trl.modules.networks``: encoder 1024-512-256 with LayerNorm + ELU, tanh-mean Gaussian
+policy head with state-independent log-std, value head); rsl_rl its own MLPs with our layer sizes
+and ELU but no LayerNorm (its ``MLPModel`` has none). Both give the critic separate layers, sized
+as ``agent.critic_encoder_sizes`` when set. Imported only when the peer is installed
+(``.[bench]``).
 """
 
 from __future__ import annotations
