@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from roto_trl.envs.registration import ENV_IDS
+from roto_trl.modules.agent import checked_critic_sizes
 from roto_trl.modules.networks import ENCODER_SIZES, Encoder, PolicyHead, ValueHead
 
 
@@ -31,8 +32,8 @@ def _vec_env(cfg):
 
 
 def critic_sizes(cfg) -> tuple[int, ...]:
-    """The critic's hidden layers: ``agent.critic_encoder_sizes`` as ours has them, else ours."""
-    return tuple(cfg.agent.get("critic_encoder_sizes") or ENCODER_SIZES)
+    """The critic's hidden layers, as our separate critic has them (``agent.critic_encoder_sizes``)."""
+    return checked_critic_sizes(cfg.agent.get("critic_encoder_sizes"), shared_encoder=False)
 
 
 def skrl_fps(cfg, iterations: int) -> float:

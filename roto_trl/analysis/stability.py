@@ -116,8 +116,9 @@ def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
         training_metric=TRAINING_METRIC[run.task],
     )
     if row.training_metric in train and "episodes" in train:
-        columns = (np.asarray(train[k], dtype=float) for k in ("frames", row.training_metric, "episodes"))
-        frames, values, episodes = columns
+        frames, values, episodes = (
+            np.asarray(train[k], dtype=float) for k in ("frames", row.training_metric, "episodes")
+        )
         row.training = dict(zip(marks, training_at(frames, values, episodes, marks), strict=True))
         row.training_at_best, row.training_at_final = training_at(
             frames, values, episodes, [row.best_frames, row.frames]
