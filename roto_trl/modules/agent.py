@@ -69,7 +69,7 @@ class Agent(nn.Module):
             (``ValueNormalizer``, the authors' skrl setup); False: raw returns (rsl_rl's).
         critic_encoder_sizes: the layer sizes of the critic's own encoder (``shared_encoder``
             False only); None: the policy encoder's ``ENCODER_SIZES``. A smaller critic makes
-            the update cheaper: the critic's encoder is half of it at the default sizes.
+            the update cheaper: at the default sizes the critic's encoder is nearly half of it.
     """
 
     def __init__(
