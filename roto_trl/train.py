@@ -94,6 +94,10 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"time_limit_minutes must be > 0 or null, got {cfg.time_limit_minutes!r}")
     if not float(cfg.agent.lr) > 0:
         raise ValueError(f"agent.lr must be > 0, got {cfg.agent.lr}")
+    clip_value = cfg.agent.clip_value
+    bad_clip = isinstance(clip_value, bool) or not isinstance(clip_value, int | float) or clip_value <= 0
+    if clip_value is not None and bad_clip:
+        raise ValueError(f"agent.clip_value must be > 0 or null (no value clipping), got {clip_value!r}")
     if cfg.logger.backend not in BACKENDS:
         raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
     check_device(cfg.device)

@@ -198,6 +198,28 @@ def test_the_cpu_profile_gives_any_experiment_the_recipe_and_keeps_its_values(ex
     assert cpu.ssl == paper.ssl
 
 
+def test_value_loss_is_clipped_by_default_and_plain_with_clip_value_null():
+    """Prediction v = 1, old value 0, target 2: clipped (0.2) the loss is max((v - 2)^2,
+    (0.2 - 2)^2) = 3.24; unclipped (v - 2)^2 = 1; both times critic_coeff 0.1."""
+    agent = Agent(("prop",), P, A)
+    with torch.no_grad():  # the value head's output is its last layer's bias: v = 1 everywhere
+        last = agent.value_head.net[-1]
+        last.weight.zero_()
+        last.bias.fill_(1.0)
+    td = ppo_minibatch(agent)
+    td["state_value"] = torch.zeros_like(td["state_value"])
+    td["value_target"] = torch.full_like(td["value_target"], 2.0)
+    for clip_value, expected in (("0.2", 0.1 * 3.24), ("null", 0.1 * 1.0)):
+        cfg = compose_cfg(["+exp=bounce_ppo", f"agent.clip_value={clip_value}"])
+        check_config(cfg)
+        out = make_ppo_loss(cfg, agent)(agent.encode(td))
+        assert float(out["loss_critic"].detach()) == pytest.approx(expected, rel=1e-5)
+        assert (out.get("value_clip_fraction", None) is not None) == (clip_value != "null")
+    for bad in ("0", "-0.1", "true"):
+        with pytest.raises(ValueError, match=r"agent.clip_value must be > 0 or null"):
+            check_config(compose_cfg(["+exp=bounce_ppo", f"agent.clip_value={bad}"]))
+
+
 def test_the_shared_agent_reads_the_policys_latent_for_its_value():
     torch.manual_seed(0)
     agent = Agent(("prop",), P, A)

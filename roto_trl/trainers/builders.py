@@ -118,14 +118,15 @@ def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
     c_ent (``agent.entropy_coeff``) multiplies the Gaussian's entropy per action dimension (the
     mean over dimensions, skrl's convention, in which the paper's c_ent values were tuned);
     TorchRL's loss takes the entropy summed over dimensions, so its coefficient is c_ent / A.
-    The logged ``entropy`` is TorchRL's, the sum.
+    The logged ``entropy`` is TorchRL's, the sum. ``agent.clip_value: null`` trains the value head
+    on the plain squared error (no ``value_clip_fraction`` is then logged).
     """
     a = _cfg(cfg).agent
     return ClipPPOLoss(
         actor_network=agent.actor_head,
         critic_network=agent.critic_head,
         clip_epsilon=float(a.clip_epsilon),
-        clip_value=float(a.clip_value),
+        clip_value=None if a.clip_value is None else float(a.clip_value),  # None: unclipped
         entropy_bonus=True,
         entropy_coeff=float(a.entropy_coeff) / agent.n_actions,
         critic_coeff=float(a.critic_coeff),
