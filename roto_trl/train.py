@@ -39,6 +39,7 @@ from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.analysis.plots import plot_run
 from roto_trl.envs.factory import task_config
 from roto_trl.modules.agent import checked_critic_sizes
+from roto_trl.objectives.mean_bound import checked_mean_bound
 from roto_trl.trainers.builders import (
     agent_for_env,
     compile_agent,
@@ -48,6 +49,7 @@ from roto_trl.trainers.builders import (
     make_collector,
     make_eval_env,
     make_lr_schedule,
+    make_mean_bound_loss,
     make_optimizer,
     make_ppo_loss,
     make_rollout_buffer,
@@ -64,6 +66,7 @@ from roto_trl.trainers.run_dir import finished_reason, resume_config, rewind
 from roto_trl.trainers.run_lock import RunLock
 from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due, evaluations_left
 from roto_trl.trainers.threads import job_threads
+from roto_trl.utils.cli import is_number
 from roto_trl.utils.paths import writable_dir
 from roto_trl.utils.resources import resource_dir
 
@@ -90,14 +93,14 @@ def check_config(cfg: DictConfig) -> None:
     if cfg.env.num_envs * cfg.agent.rollout_len < cfg.agent.minibatches:
         raise ValueError("agent.minibatches exceeds one rollout's frames (env.num_envs * agent.rollout_len)")
     limit = cfg.time_limit_minutes
-    if limit is not None and (isinstance(limit, bool) or not isinstance(limit, int | float) or limit <= 0):
+    if limit is not None and not (is_number(limit) and limit > 0):
         raise ValueError(f"time_limit_minutes must be > 0 or null, got {cfg.time_limit_minutes!r}")
     if not float(cfg.agent.lr) > 0:
         raise ValueError(f"agent.lr must be > 0, got {cfg.agent.lr}")
-    clip_value = cfg.agent.clip_value
-    bad_clip = isinstance(clip_value, bool) or not isinstance(clip_value, int | float) or clip_value <= 0
-    if clip_value is not None and bad_clip:
-        raise ValueError(f"agent.clip_value must be > 0 or null (no value clipping), got {clip_value!r}")
+    a = cfg.agent
+    if a.clip_value is not None and not (is_number(a.clip_value) and a.clip_value > 0):
+        raise ValueError(f"agent.clip_value must be > 0 or null (no value clipping), got {a.clip_value!r}")
+    checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))  # older runs lack both: defaults
     if cfg.logger.backend not in BACKENDS:
         raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
     check_device(cfg.device)
@@ -105,7 +108,7 @@ def check_config(cfg: DictConfig) -> None:
     if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
         raise ValueError(f"torch_threads must be a positive integer or null, got {threads!r}")
     interval = cfg.checkpoint.interval_minutes
-    if isinstance(interval, bool) or not isinstance(interval, int | float) or interval < 0:
+    if not (is_number(interval) and interval >= 0):
         raise ValueError(f"checkpoint.interval_minutes must be a number >= 0, got {interval!r}")
     if isinstance(cfg.seed, bool) or not isinstance(cfg.seed, int):
         raise ValueError(f"seed must be an integer, got {cfg.seed!r}")
@@ -265,6 +268,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     agent = agent_for_env(cfg, env)
     compile_agent(cfg, agent)  # agent.compile=true only
     loss_fn = make_ppo_loss(cfg, agent)
+    mean_bound = make_mean_bound_loss(cfg, agent)  # agent.mean_bound_coeff=0: diagnostics only
     advantage = make_advantage(cfg)
     optimizer = make_optimizer(cfg, agent)
     params = [p for group in optimizer.param_groups for p in group["params"]]
@@ -351,7 +355,9 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
 
             t0 = time.perf_counter()
             store_rollout(batch, agent, advantage, buffer, aux)
-            losses, aux_rows = ppo_update(cfg, buffer, agent, loss_fn, optimizer, params, aux, lr_schedule)
+            losses, aux_rows = ppo_update(
+                cfg, buffer, agent, loss_fn, optimizer, params, aux, lr_schedule, mean_bound
+            )
             update_s = time.perf_counter() - t0
 
             stats = rollout_stats(batch, ep_return, columns)

@@ -1,5 +1,5 @@
 """The PPO update: entropy and log-std conventions, the paper's Eq. 2 with an SSL objective, the
-two optimisers, the auxiliary minibatches and the KL-adaptive learning rate."""
+two optimisers, the auxiliary minibatches, the KL-adaptive learning rate and the mean's bound."""
 
 import math
 
@@ -11,10 +11,17 @@ from tensordict import TensorDict
 from roto_trl import make_env
 from roto_trl.data.memory import AuxMemory
 from roto_trl.modules.agent import Agent
-from roto_trl.objectives import TactileForwardDynamicsLoss
+from roto_trl.objectives import PolicyMeanBoundLoss, TactileForwardDynamicsLoss
+from roto_trl.objectives.functional import excess_square
 from roto_trl.train import check_config
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
-from roto_trl.trainers.builders import agent_for_env, make_lr_schedule, make_optimizer, make_ppo_loss
+from roto_trl.trainers.builders import (
+    agent_for_env,
+    make_lr_schedule,
+    make_mean_bound_loss,
+    make_optimizer,
+    make_ppo_loss,
+)
 from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3
 from roto_trl.trainers.ppo import minibatch_loss
 
@@ -305,3 +312,58 @@ def test_the_initial_log_std_is_configurable_and_the_papers_is_zero():
     agent = Agent(("prop",), P, A, init_log_std=-1.0)
     _, scale = agent.policy_head(torch.zeros(3, agent.encoder.latent_dim))
     torch.testing.assert_close(scale, torch.full((3, A), math.exp(-1.0)))
+
+
+# ---------------------------------------------------------------------------- the policy mean's bound
+
+
+def agent_with_preactivation(u):
+    """An agent whose policy mean's pre-tanh output is ``u`` ``[A]`` in every state."""
+    agent = Agent(("prop", "tactile"), P + T, A)
+    with torch.no_grad():
+        agent.policy_head.mean.weight.zero_()
+        agent.policy_head.mean.bias.copy_(torch.tensor(u))
+    return agent
+
+
+def test_excess_square_by_hand():
+    # relu(|x| - 2) = [1, 0, 0, 0.5]; squares [1, 0, 0, 0.25]; mean 1.25 / 4
+    assert float(excess_square(torch.tensor([-3.0, -1.0, 0.5, 2.5]), 2.0)) == pytest.approx(0.3125)
+
+
+def test_mean_bound_loss_by_hand_and_only_past_the_bound():
+    agent = agent_with_preactivation([3.0, -0.5, 1.0])
+    td = agent.encode(ppo_minibatch(agent))
+    out = PolicyMeanBoundLoss(agent.policy_head, bound=2.0, coeff=0.5)(td)
+    # 0.5 * mean([1, 0, 0]); |tanh u| = 0.995, 0.46, 0.76: one of three saturated; mean |u| 1.5
+    assert float(out["loss_mean_bound"].detach()) == pytest.approx(0.5 / 3)
+    assert float(out["mean_saturation"]) == pytest.approx(1 / 3)
+    assert float(out["mean_preactivation_abs"]) == pytest.approx(1.5)
+    out["loss_mean_bound"].backward()
+    # d/du_0 of 0.5 * sum_rows (u_0 - 2)^2 / (rows * 3) = 0.5 * 2 * 1 / 3, the same for the bias
+    assert agent.policy_head.mean.bias.grad.tolist() == pytest.approx([1 / 3, 0.0, 0.0])
+    off = PolicyMeanBoundLoss(agent.policy_head, coeff=0.0)(td)
+    assert float(off["loss_mean_bound"]) == 0.0 and not off["loss_mean_bound"].requires_grad
+    assert float(off["mean_saturation"]) == pytest.approx(1 / 3)  # the diagnostic either way
+    renamed = PolicyMeanBoundLoss(agent.policy_head, coeff=0.5)
+    renamed.set_keys(latent="latent")
+    moved = td.clone()
+    moved.rename_key_("z", "latent")
+    assert float(renamed(moved)["loss_mean_bound"].detach()) == pytest.approx(0.5 / 3)
+
+
+def test_the_mean_bound_joins_the_minibatch_loss_only_with_a_weight():
+    agent = agent_with_preactivation([3.0, -0.5, 1.0])
+    cfg = compose_cfg(["+exp=bounce_ppo"])
+    loss_fn, batch = make_ppo_loss(cfg, agent), ppo_minibatch(agent)
+    plain = minibatch_loss(agent, loss_fn, batch.clone())[0].detach()
+    unweighted = make_mean_bound_loss(cfg, agent)  # agent.mean_bound_coeff 0: diagnostics only
+    logged, losses, _ = minibatch_loss(agent, loss_fn, batch.clone(), mean_bound=unweighted)
+    assert float(logged.detach()) == float(plain) and float(losses["mean_saturation"]) == pytest.approx(1 / 3)
+    weighted = make_mean_bound_loss(compose_cfg(["+exp=bounce_ppo", "agent.mean_bound_coeff=0.5"]), agent)
+    total, _, _ = minibatch_loss(agent, loss_fn, batch.clone(), mean_bound=weighted)
+    assert float(total.detach()) == pytest.approx(float(plain) + 0.5 / 3, rel=1e-5)
+    bad_values = (("agent.mean_bound=0", "mean_bound must be"), ("agent.mean_bound_coeff=-1", "coeff must"))
+    for bad, match in bad_values:
+        with pytest.raises(ValueError, match=match):
+            check_config(compose_cfg(["+exp=bounce_ppo", bad]))

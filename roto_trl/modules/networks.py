@@ -61,8 +61,12 @@ class PolicyHead(nn.Module):
         self.mean = nn.Linear(HEAD_SIZES[-1], n_actions)
         self.log_std = nn.Parameter(torch.full((n_actions,), float(init_log_std)))
 
+    def preactivation(self, z: torch.Tensor) -> torch.Tensor:
+        """The mean before its tanh ``[*B, n_actions]`` (``PolicyMeanBoundLoss`` bounds it)."""
+        return self.mean(self.body(z))
+
     def forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        loc = torch.tanh(self.mean(self.body(z)))
+        loc = torch.tanh(self.preactivation(z))
         return loc, self.log_std.clamp(*LOG_STD_RANGE).exp().expand_as(loc)
 
 

@@ -1,4 +1,4 @@
-"""The self-supervised objectives' maths as small pure functions on tensors (unit-tested by hand)."""
+"""The objectives' maths as small pure functions on tensors (unit-tested by hand)."""
 
 from __future__ import annotations
 
@@ -75,3 +75,8 @@ def rollout_latents(forward_model, z0: torch.Tensor, actions: torch.Tensor) -> t
         z = forward_model(torch.cat([z, actions[:, i]], dim=-1))
         out.append(z)
     return torch.stack(out, dim=1)
+
+
+def excess_square(x: torch.Tensor, bound: float) -> torch.Tensor:
+    """Mean over all elements of ``relu(|x| - bound)^2``: 0 inside [-bound, bound], quadratic outside."""
+    return F.relu(x.abs() - bound).square().mean()

@@ -23,9 +23,11 @@ from roto_trl.modules.distributions import DEFAULT_DETERMINISTIC_ACTION
 from roto_trl.objectives import (
     ForwardDynamicsLoss,
     FullReconstructionLoss,
+    PolicyMeanBoundLoss,
     TactileForwardDynamicsLoss,
     TactileReconstructionLoss,
 )
+from roto_trl.objectives.mean_bound import checked_mean_bound
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.lr_schedule import KLAdaptiveLR
 
@@ -134,6 +136,15 @@ def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
         normalize_advantage=bool(a.normalize_advantage),
         functional=False,  # the heads' own parameters: one optimiser updates them with the encoder
     )
+
+
+def make_mean_bound_loss(cfg, agent: Agent) -> PolicyMeanBoundLoss:
+    """The bound on the policy mean's pre-tanh output (``agent.mean_bound``, weight
+    ``agent.mean_bound_coeff``; 0, the default, logs only ``mean_saturation`` and
+    ``mean_preactivation_abs``)."""
+    a = _cfg(cfg).agent
+    bound, coeff = checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))
+    return PolicyMeanBoundLoss(agent.policy_head, bound=bound, coeff=coeff)
 
 
 def make_advantage(cfg) -> GAE:

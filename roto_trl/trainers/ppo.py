@@ -56,13 +56,20 @@ MEDIAN_OF = ("kl_approx", "kl_k3", "clip_fraction")  # per-minibatch numbers als
 
 
 def minibatch_loss(
-    agent: Agent, loss_fn, minibatch: TensorDictBase, aux=None, aux_data: TensorDictBase | None = None
+    agent: Agent,
+    loss_fn,
+    minibatch: TensorDictBase,
+    aux=None,
+    aux_data: TensorDictBase | None = None,
+    mean_bound=None,
 ) -> tuple[torch.Tensor, TensorDictBase, dict[str, float] | None]:
-    """The paper's Eq. 2 on one minibatch: L = L_PPO + c_aux L_aux.
+    """The paper's Eq. 2 on one minibatch: L = L_PPO + c_aux L_aux (+ the optional mean bound).
 
     Args:
         minibatch: PPO's minibatch ``[M]`` from the rollout buffer.
         aux: the ``AuxiliaryUpdate``, or None; ``aux_data`` its minibatch (None: PPO alone).
+        mean_bound: a ``PolicyMeanBoundLoss`` or None; its term joins the total only when its
+            ``coeff`` is above 0, its diagnostics join PPO's outputs either way.
 
     Returns:
         The total loss (scalar, one backward trains encoder, heads and auxiliary networks),
@@ -70,6 +77,11 @@ def minibatch_loss(
     """
     losses = loss_fn(agent.encode(minibatch))
     total = sum(losses[k] for k in PPO_TERMS)
+    if mean_bound is not None:
+        bound = mean_bound(minibatch)  # reads the z that agent.encode wrote
+        losses.update(bound)
+        if mean_bound.coeff > 0:
+            total = total + bound["loss_mean_bound"]
     aux_stats = None
     if aux is not None and aux_data is not None:
         aux_total, aux_stats = aux.objective(aux_data)
@@ -77,7 +89,9 @@ def minibatch_loss(
     return total, losses, aux_stats
 
 
-def minibatch_step(agent, loss_fn, optimizer, params, max_grad_norm, minibatch, aux=None, aux_data=None):
+def minibatch_step(
+    agent, loss_fn, optimizer, params, max_grad_norm, minibatch, aux=None, aux_data=None, mean_bound=None
+):
     """One update on ``minibatch`` (and ``aux_data``, an auxiliary minibatch or None): the backward
     of ``minibatch_loss``, the gradient norm of ``params`` clipped to ``max_grad_norm``, the PPO
     optimiser's step and, with auxiliary data, the auxiliary one's.
@@ -85,7 +99,7 @@ def minibatch_step(agent, loss_fn, optimizer, params, max_grad_norm, minibatch, 
     Returns ``ClipPPOLoss``'s output, the gradient norm before clipping and the auxiliary numbers
     (None without auxiliary data); a ``NonFiniteError`` for a non-finite loss or gradient.
     """
-    total, losses, aux_stats = minibatch_loss(agent, loss_fn, minibatch, aux, aux_data)
+    total, losses, aux_stats = minibatch_loss(agent, loss_fn, minibatch, aux, aux_data, mean_bound)
     optimizer.zero_grad(set_to_none=True)
     if aux is not None:
         aux.zero_grad()
@@ -101,14 +115,15 @@ def minibatch_step(agent, loss_fn, optimizer, params, max_grad_norm, minibatch, 
 
 
 def ppo_update(
-    cfg, buffer, agent, loss_fn, optimizer, params, aux=None, lr_schedule=None
+    cfg, buffer, agent, loss_fn, optimizer, params, aux=None, lr_schedule=None, mean_bound=None
 ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """``epochs`` passes of ``minibatches`` disjoint minibatches.
 
     Each minibatch: one backward of L_PPO + c_aux L_aux (``minibatch_loss``; L_aux on the next of
     this epoch's auxiliary minibatches, ``aux.epoch``), then the PPO optimiser steps encoder +
     heads (gradient norm of ``params`` clipped) and the auxiliary optimiser the auxiliary
-    networks. With ``lr_schedule`` the learning rate follows each epoch's mean ``kl_k3``.
+    networks. With ``lr_schedule`` the learning rate follows each epoch's mean ``kl_k3``;
+    ``mean_bound`` (a ``PolicyMeanBoundLoss``) adds its term and diagnostics to each minibatch's.
 
     Returns:
         The mean diagnostics over minibatches (``ClipPPOLoss``'s, ``grad_norm``, ``kl_k3``:
@@ -124,7 +139,15 @@ def ppo_update(
         for _ in range(cfg.agent.minibatches):
             aux_data = next(aux_batches, None)
             losses, grad_norm, aux_stats = minibatch_step(
-                agent, loss_fn, optimizer, params, cfg.agent.max_grad_norm, buffer.sample(), aux, aux_data
+                agent,
+                loss_fn,
+                optimizer,
+                params,
+                cfg.agent.max_grad_norm,
+                buffer.sample(),
+                aux,
+                aux_data,
+                mean_bound,
             )
             diag = {k: float(v.detach().mean()) for k, v in losses.items()}
             diag["grad_norm"] = float(grad_norm)

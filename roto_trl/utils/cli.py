@@ -1,4 +1,5 @@
-"""``key=value`` command lines for the small tools (record, evaluate), with one-line errors."""
+"""``key=value`` command lines for the small tools (record, evaluate), with one-line errors, and the
+checks of config values they and ``train.py`` share."""
 
 from __future__ import annotations
 
@@ -29,6 +30,11 @@ def parse_key_values(prog: str, argv: list[str], defaults: dict, example: str) -
     if missing:
         raise SystemExit(f"{prog}: give {' '.join(k + '=...' for k in missing)}; e.g. {example}")
     return cfg
+
+
+def is_number(value) -> bool:
+    """An int or float from a config (a YAML ``true`` is a bool, not a number)."""
+    return isinstance(value, int | float) and not isinstance(value, bool)
 
 
 def check_int(prog: str, cfg: DictConfig, key: str, minimum: int, *, optional: bool = False) -> None:
