@@ -199,6 +199,7 @@ def test_the_cpu_profile_gives_any_experiment_the_recipe_and_keeps_its_values(ex
     cpu = compose_cfg([f"+exp={exp}", "+profile=cpu"])
     recipe = (cpu.env.num_envs, cpu.agent.shared_encoder, cpu.agent.lr_schedule, cpu.agent.minibatches)
     assert recipe == (256, False, "kl_adaptive", 8)
+    assert list(cpu.agent.critic_encoder_sizes) == [256, 128] and paper.agent.critic_encoder_sizes is None
     assert (paper.agent.shared_encoder, paper.agent.lr_schedule) == (True, "fixed")  # the paper's
     for key in ("lr", "rollout_len", "epochs", "entropy_coeff"):
         assert cpu.agent[key] == paper.agent[key]
