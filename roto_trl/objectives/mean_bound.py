@@ -31,13 +31,13 @@ def checked_mean_bound(bound, coeff) -> tuple[float, float]:
 class PolicyMeanBoundLoss(LossModule):
     """L = coeff * mean(relu(|u| - bound)^2) on the pre-tanh mean u of the policy head.
 
-    Why: the policy's mean is tanh(u). On Bounce PPO drives u of many action dimensions past the
-    tanh's knee (README, "Results on a CPU": in one run 15 % of |tanh(u)| > 0.9 on the states of
-    the best checkpoint's controller, 48 % at the final one), where tanh'(u) is near 0: the mean
-    stops answering the state, and the noise-free controller can degrade while the sampled
-    policy, whose clipped samples sit at the bounds either way, holds. Inside [-bound, bound] the
-    term is 0, so it only pulls back what has run past the knee. With ``coeff`` 0 it returns a
-    zero loss without a graph and only the diagnostics.
+    Why: the policy's mean is tanh(u), and PPO can drive u past the tanh's knee, where tanh'(u)
+    is near 0 and the mean stops answering the state (Bounce with the CPU recipe: 31 % of
+    |tanh(u)| > 0.9 on its controller's states at the best checkpoint, 83 % at 4 M frames).
+    Inside [-bound, bound] the term is 0, so it only pulls back what has run past the knee.
+    Measured in the README ("Results on a CPU"): bound 1.0 removes the saturation but not
+    Bounce's fall-back, so it is off by default. With ``coeff`` 0 it returns a zero loss
+    without a graph and only the diagnostics.
 
     Input: a tensordict ``[B]`` with the latent ``z`` ``[B, Z]`` (``Agent.encode`` writes it).
     Output: ``loss_mean_bound`` and the detached diagnostics ``mean_saturation`` (the fraction of
@@ -45,8 +45,8 @@ class PolicyMeanBoundLoss(LossModule):
 
     Args:
         policy_head: the agent's ``PolicyHead`` (its parameters, not a copy).
-        bound: |u| allowed without penalty (2.0: tanh 0.964, tanh' 0.07).
-        coeff: the term's weight in the PPO minibatch loss (0: diagnostics only).
+        bound: |u| allowed without penalty (2.0: tanh 0.964, tanh' 0.07; None: 2.0).
+        coeff: the term's weight in the PPO minibatch loss (0 or None: diagnostics only).
     """
 
     @dataclass
@@ -61,7 +61,9 @@ class PolicyMeanBoundLoss(LossModule):
 
     default_keys = _AcceptedKeys
 
-    def __init__(self, policy_head: PolicyHead, *, bound: float = DEFAULT_BOUND, coeff: float = 0.0) -> None:
+    def __init__(
+        self, policy_head: PolicyHead, *, bound: float | None = DEFAULT_BOUND, coeff: float | None = 0.0
+    ) -> None:
         super().__init__()
         self.policy_head = policy_head
         self.bound, self.coeff = checked_mean_bound(bound, coeff)

@@ -27,7 +27,6 @@ from roto_trl.objectives import (
     TactileForwardDynamicsLoss,
     TactileReconstructionLoss,
 )
-from roto_trl.objectives.mean_bound import checked_mean_bound
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.lr_schedule import KLAdaptiveLR
 
@@ -142,9 +141,8 @@ def make_mean_bound_loss(cfg, agent: Agent) -> PolicyMeanBoundLoss:
     """The bound on the policy mean's pre-tanh output (``agent.mean_bound``, weight
     ``agent.mean_bound_coeff``; 0, the default, logs only ``mean_saturation`` and
     ``mean_preactivation_abs``)."""
-    a = _cfg(cfg).agent
-    bound, coeff = checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))
-    return PolicyMeanBoundLoss(agent.policy_head, bound=bound, coeff=coeff)
+    a = _cfg(cfg).agent  # a run saved before these keys existed gets the defaults (None)
+    return PolicyMeanBoundLoss(agent.policy_head, bound=a.get("mean_bound"), coeff=a.get("mean_bound_coeff"))
 
 
 def make_advantage(cfg) -> GAE:
