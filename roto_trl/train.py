@@ -268,7 +268,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     agent = agent_for_env(cfg, env)
     compile_agent(cfg, agent)  # agent.compile=true only
     loss_fn = make_ppo_loss(cfg, agent)
-    mean_bound = make_mean_bound_loss(cfg, agent)  # agent.mean_bound_coeff=0: diagnostics only
+    mean_bound = make_mean_bound_loss(cfg, agent)  # None unless agent.mean_bound_coeff > 0
     advantage = make_advantage(cfg)
     optimizer = make_optimizer(cfg, agent)
     params = [p for group in optimizer.param_groups for p in group["params"]]

@@ -13,7 +13,7 @@ from roto_trl.modules.networks import PolicyHead
 from roto_trl.objectives.functional import excess_square
 from roto_trl.utils.cli import is_number
 
-SATURATED = 0.9  # |tanh(u)| above this counts as saturated in the diagnostic (|u| > 1.47)
+SATURATED = 0.9  # |tanh(u)| above this counts as saturated in the diagnostics (|u| > 1.47)
 DEFAULT_BOUND = 2.0  # tanh(2) = 0.964, tanh'(2) = 0.07
 
 

@@ -137,12 +137,13 @@ def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
     )
 
 
-def make_mean_bound_loss(cfg, agent: Agent) -> PolicyMeanBoundLoss:
+def make_mean_bound_loss(cfg, agent: Agent) -> PolicyMeanBoundLoss | None:
     """The bound on the policy mean's pre-tanh output (``agent.mean_bound``, weight
-    ``agent.mean_bound_coeff``; 0, the default, logs only ``mean_saturation`` and
-    ``mean_preactivation_abs``)."""
+    ``agent.mean_bound_coeff``), or None when the weight is 0 (the default): then the update does
+    no extra work (``mean_saturation`` comes from the rollout, ``ppo.rollout_stats``)."""
     a = _cfg(cfg).agent  # a run saved before these keys existed gets the defaults (None)
-    return PolicyMeanBoundLoss(agent.policy_head, bound=a.get("mean_bound"), coeff=a.get("mean_bound_coeff"))
+    loss = PolicyMeanBoundLoss(agent.policy_head, bound=a.get("mean_bound"), coeff=a.get("mean_bound_coeff"))
+    return loss if loss.coeff > 0 else None
 
 
 def make_advantage(cfg) -> GAE:

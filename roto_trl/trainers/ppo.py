@@ -8,6 +8,7 @@ import torch
 from tensordict import TensorDictBase
 
 from roto_trl.modules.agent import Agent
+from roto_trl.objectives.mean_bound import SATURATED
 from roto_trl.trainers.errors import NonFiniteError
 from roto_trl.trainers.lr_schedule import kl_k3
 
@@ -68,8 +69,8 @@ def minibatch_loss(
     Args:
         minibatch: PPO's minibatch ``[M]`` from the rollout buffer.
         aux: the ``AuxiliaryUpdate``, or None; ``aux_data`` its minibatch (None: PPO alone).
-        mean_bound: a ``PolicyMeanBoundLoss`` or None; its term joins the total only when its
-            ``coeff`` is above 0, its diagnostics join PPO's outputs either way.
+        mean_bound: a ``PolicyMeanBoundLoss`` or None; its term joins the total, its
+            diagnostics PPO's outputs.
 
     Returns:
         The total loss (scalar, one backward trains encoder, heads and auxiliary networks),
@@ -80,8 +81,7 @@ def minibatch_loss(
     if mean_bound is not None:
         bound = mean_bound(minibatch)  # reads the z that agent.encode wrote
         losses.update(bound)
-        if mean_bound.coeff > 0:
-            total = total + bound["loss_mean_bound"]
+        total = total + bound["loss_mean_bound"]
     aux_stats = None
     if aux is not None and aux_data is not None:
         aux_total, aux_stats = aux.objective(aux_data)
@@ -170,15 +170,22 @@ def ppo_update(
     return means, aux_rows
 
 
+def saturation(loc: torch.Tensor) -> float:
+    """The fraction of entries of the policy's tanh mean ``loc`` with |loc| > ``SATURATED``."""
+    return float((loc.abs() > SATURATED).float().mean())
+
+
 def rollout_stats(batch: TensorDictBase, ep_return: torch.Tensor, columns) -> dict[str, float]:
-    """Per-step reward terms and the return and metrics of episodes that ended in ``batch``.
+    """Per-step reward terms, the return and metrics of episodes that ended in ``batch``, and the
+    fraction of the policy mean's entries |loc| > 0.9 on the collected states (``mean_saturation``,
+    read from the ``loc`` the policy wrote while acting: no extra forward pass).
 
     ``ep_return`` [N] carries each world's running return across rollouts (updated in place).
     """
     nxt = batch["next"]
     reward = nxt["reward"].squeeze(-1)  # [N, R]
     done = nxt["done"].squeeze(-1)
-    stats = {"reward": float(reward.mean())}
+    stats = {"reward": float(reward.mean()), "mean_saturation": saturation(batch["loc"])}
     for term, value in nxt["reward_terms"].items():
         stats[f"reward/{term}"] = float(value.mean())
     returns = []
