@@ -11,7 +11,9 @@ first episode in ``<run>/videos/``), ``out`` (default ``<run>/eval.json``), ``po
 (``deterministic``, the default: the run's ``agent.deterministic_action``, as its training
 evaluations; ``applied_mean``: the mean of the action the env applies, E[clip(sample)];
 ``gaussian_mean``: the Gaussian's mean, skrl's and the authors' deterministic action;
-``stochastic``: samples of its Gaussian, seeded, as the agent acts in training).
+``stochastic``: samples of its Gaussian, seeded, as the agent acts in training), ``weights``
+(``average``, the default: the moving average of the policy's weights when the run kept one,
+``agent.policy_ema_decay`` > 0, as its training evaluations; ``trained``: the weights PPO trained).
 
 Physical metrics (per task, :meth:`~roto_trl.envs.robot_env.RobotTaskEnv.physical_metrics`):
 Find, seconds to reach each tolerance and the fraction of episodes that reached it; Bounce,
@@ -42,13 +44,15 @@ DEFAULTS = {
     "video": False,
     "out": None,
     "policy": "deterministic",
+    "weights": "average",
 }
 
 
 def print_result(result: dict[str, Any]) -> None:
     policy = result.get("policy", "deterministic")
     frames = result["trained_frames"]
-    print(f"{result['exp_name']} ({result['task']}), {frames:,} training frames, {policy} policy")
+    weights = "averaged weights" if result.get("weights") == "average" else "trained weights"
+    print(f"{result['exp_name']} ({result['task']}), {frames:,} training frames, {policy} policy, {weights}")
     episodes = result["episodes"]
     print(f"  {'return':<22} {result['return_mean']:.3f} ± {result['return_std']:.3f} ({episodes} episodes)")
     for name, value in result["physical"].items():
@@ -75,6 +79,7 @@ def main(argv: list[str] | None = None) -> Path:
             bool(cfg.video),
             None if cfg.out is None else Path(str(cfg.out)),
             str(cfg.policy),
+            str(cfg.weights),
         )
     except (ValueError, RuntimeError, FileNotFoundError) as err:  # bad input: one line, no traceback
         raise SystemExit(f"evaluate: {err}") from None

@@ -51,6 +51,7 @@ from roto_trl.trainers.builders import (
     make_lr_schedule,
     make_mean_bound_loss,
     make_optimizer,
+    make_policy_average,
     make_ppo_loss,
     make_rollout_buffer,
     make_train_env,
@@ -60,6 +61,7 @@ from roto_trl.trainers.errors import NonFiniteError, RunInUse, TrainingInterrupt
 from roto_trl.trainers.evaluation import evaluate, selection_key
 from roto_trl.trainers.interrupts import StopRequests
 from roto_trl.trainers.loggers import BACKENDS, MetricLogger, read_csv
+from roto_trl.trainers.policy_average import POLICY_AVERAGE_KEY, averaged, checked_decay
 from roto_trl.trainers.ppo import ppo_update, rollout_stats, store_rollout
 from roto_trl.trainers.progress import TrainingProgress
 from roto_trl.trainers.run_dir import finished_reason, resume_config, rewind
@@ -101,6 +103,7 @@ def check_config(cfg: DictConfig) -> None:
     if a.clip_value is not None and not (is_number(a.clip_value) and a.clip_value > 0):
         raise ValueError(f"agent.clip_value must be > 0 or null (no value clipping), got {a.clip_value!r}")
     checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))  # older runs lack both: defaults
+    checked_decay(a.get("policy_ema_decay"))
     if cfg.logger.backend not in BACKENDS:
         raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
     check_device(cfg.device)
@@ -273,6 +276,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     optimizer = make_optimizer(cfg, agent)
     params = [p for group in optimizer.param_groups for p in group["params"]]
     lr_schedule = make_lr_schedule(cfg, optimizer)  # None: agent.lr throughout
+    policy_average = make_policy_average(cfg, agent)  # None unless agent.policy_ema_decay > 0
     aux = make_aux_update(cfg, agent, env)  # the self-supervised objective, or None
 
     frames, iteration, wall_before = 0, 0, 0.0
@@ -289,6 +293,8 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
         set_rng_state(resumed["rng"], env)
         if aux is not None:
             aux.load_state_dict(resumed["aux"])
+        if policy_average is not None:
+            policy_average.load_state_dict(resumed[POLICY_AVERAGE_KEY])
         print(f"resuming {run_dir} at {frames:,} frames (iteration {iteration})")
 
     # 3. the collector and the rollout buffer
@@ -320,6 +326,8 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
         }
         if aux is not None:
             state["aux"] = aux.state_dict()
+        if policy_average is not None:  # the controller evaluate.py loads (agent_from_checkpoint)
+            state[POLICY_AVERAGE_KEY] = policy_average.state_dict()
         try:
             save_checkpoint(ckpt_dir / name, state)
         except WriteError as err:  # the logs must not run ahead of the last good checkpoint
@@ -358,6 +366,8 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             losses, aux_rows = ppo_update(
                 cfg, buffer, agent, loss_fn, optimizer, params, aux, lr_schedule, mean_bound
             )
+            if policy_average is not None:
+                policy_average.update()
             update_s = time.perf_counter() - t0
 
             stats = rollout_stats(batch, ep_return, columns)
@@ -380,7 +390,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             out_of_time = cfg.time_limit_minutes is not None and wall >= 60 * float(cfg.time_limit_minutes)
             done_training = frames >= cfg.total_frames or out_of_time
             if evaluation_due(frames - batch.numel(), frames, every_frames) or done_training:
-                with eval_clock:
+                with eval_clock, averaged(policy_average):
                     final_eval = evaluate(eval_env, agent, eval_seed(cfg))
                 final_eval["time"] = eval_clock.last
                 logger.log("eval", {"iteration": iteration, **final_eval}, frames)

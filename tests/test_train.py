@@ -15,6 +15,7 @@ import torch
 from helpers import TINY, compose_cfg
 from omegaconf import OmegaConf
 
+from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.modules.normalization import ValueNormalizer
 from roto_trl.train import EXIT_NON_FINITE, check_config, train
 from roto_trl.trainers.builders import agent_for_env, make_train_env
@@ -202,6 +203,30 @@ def test_resume_restores_both_optimisers_of_an_ssl_run(tmp_path):
     train(compose_cfg([f"resume={run}"]))
     state = load_checkpoint(run)
     assert adam_steps(state["optimizer"]) == adam_steps(state["aux"]["optimizer"]) == {16}
+
+
+def test_policy_average_is_what_the_run_evaluates_and_saves(tmp_path):
+    run = tmp_path / "run"
+    average = ["agent.policy_ema_decay=0.5", "agent.shared_encoder=false", "agent.critic_encoder_sizes=[16]"]
+    train(compose_cfg(["+exp=bounce_ppo", *TINY, *average, "total_frames=256", f"run_dir={run}"]))
+    state = load_checkpoint(run)
+    saved = state["policy_average"]
+    assert set(saved) == {k for k in state["agent"] if k.startswith(("encoder.", "policy_head."))}
+    assert any(not torch.equal(saved[k], state["agent"][k]) for k in saved)  # two updates moved it
+    # evaluate.py replays the run's last evaluation (latest.pt, its seed and worlds) with the average
+    last_eval = float(rows(run / "eval.csv")[-1]["return_mean"])
+    replay = json.loads(evaluate_run(run, "latest", out=tmp_path / "average.json").read_text())
+    assert replay["weights"] == "average" and replay["return_mean"] == pytest.approx(last_eval, rel=1e-5)
+    trained = json.loads(evaluate_run(run, "latest", out=tmp_path / "t.json", weights="trained").read_text())
+    assert trained["weights"] == "trained"
+    with pytest.raises(ValueError, match="weights must be one of"):
+        evaluate_run(run, "latest", out=tmp_path / "x.json", weights="ema")
+    config = OmegaConf.load(run / "config.yaml")
+    config.total_frames = 384
+    OmegaConf.save(config, run / "config.yaml")
+    train(compose_cfg([f"resume={run}"]))  # the average continues from the checkpoint's
+    resumed = load_checkpoint(run)["policy_average"]
+    assert resumed.keys() == saved.keys() and any(not torch.equal(resumed[k], saved[k]) for k in saved)
 
 
 def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):

@@ -1,5 +1,6 @@
 """The PPO update: entropy and log-std conventions, the paper's Eq. 2 with an SSL objective, the
-two optimisers, the auxiliary minibatches, the KL-adaptive learning rate and the mean's bound."""
+two optimisers, the auxiliary minibatches, the KL-adaptive learning rate, the mean's bound and the
+moving average of the policy's weights."""
 
 import math
 
@@ -23,6 +24,7 @@ from roto_trl.trainers.builders import (
     make_ppo_loss,
 )
 from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3
+from roto_trl.trainers.policy_average import PolicyAverage, policy_parameters
 from roto_trl.trainers.ppo import minibatch_loss, saturation
 
 P, T, A = 6, 4, 3
@@ -369,3 +371,38 @@ def test_the_mean_bound_joins_the_minibatch_loss_only_with_a_weight():
     for bad, match in bad_values:
         with pytest.raises(ValueError, match=match):
             check_config(compose_cfg(["+exp=bounce_ppo", bad]))
+
+
+# ---------------------------------------------------------------------------- the policy's average
+
+
+def test_policy_average_by_hand_and_swapped_in_only_inside_the_block():
+    torch.manual_seed(0)
+    agent = Agent(("prop", "tactile"), P + T, A, shared_encoder=False, critic_encoder_sizes=(8,))
+    names = set(policy_parameters(agent))
+    assert names and all(n.startswith(("encoder.", "policy_head.")) for n in names)
+    assert "policy_head.log_std" in names and not any(n.startswith("value") for n in names)
+    with torch.no_grad():
+        for p in agent.parameters():
+            p.fill_(0.0)
+    average = PolicyAverage(agent, 0.5)  # starts at the current weights: 0
+    critic_before = agent.value_encoder.net[0].weight.clone()
+    for weight in (2.0, 4.0):
+        with torch.no_grad():
+            for p in policy_parameters(agent).values():
+                p.fill_(weight)
+        average.update()
+    # 0.5 * (0.5 * 0 + 0.5 * 2) + 0.5 * 4 = 2.5
+    assert all(torch.all(t == 2.5) for t in average.state_dict().values())
+    with average.swapped_in():
+        assert torch.all(agent.policy_head.log_std == 2.5) and torch.all(agent.encoder.net[0].weight == 2.5)
+    assert torch.all(agent.policy_head.log_std == 4.0)  # the trained weights are back
+    assert torch.equal(agent.value_encoder.net[0].weight, critic_before)  # never averaged
+    restored = PolicyAverage(agent, 0.5)
+    restored.load_state_dict(average.state_dict())
+    assert all(torch.all(t == 2.5) for t in restored.state_dict().values())
+    with pytest.raises(ValueError, match="does not fit this agent"):
+        restored.load_state_dict({"encoder.other": torch.zeros(1)})
+    for bad in (1.0, -0.1, "'0.9'"):
+        with pytest.raises(ValueError, match="policy_ema_decay must be a number in"):
+            check_config(compose_cfg(["+exp=bounce_ppo", f"agent.policy_ema_decay={bad}"]))

@@ -15,6 +15,7 @@ from roto_trl.modules.distributions import DEFAULT_DETERMINISTIC_ACTION, DETERMI
 from roto_trl.trainers.builders import eval_seed, make_eval_env
 from roto_trl.trainers.checkpoint import BEST, LATEST, agent_from_checkpoint, load_checkpoint
 from roto_trl.trainers.evaluation import run_episodes
+from roto_trl.trainers.policy_average import POLICY_AVERAGE_KEY
 from roto_trl.utils.video import write_mp4
 
 NAMED = {"best": BEST, "latest": LATEST}
@@ -69,6 +70,7 @@ def evaluate_checkpoint(
     seed: int,
     video: bool = False,
     policy: str = "deterministic",
+    weights: str = "average",
 ) -> tuple[dict[str, Any], list]:
     """Evaluate a checkpoint's policy on ``episodes`` fresh worlds of its task.
 
@@ -76,6 +78,8 @@ def evaluate_checkpoint(
     the run's ``agent.deterministic_action``), ``applied_mean`` or ``gaussian_mean`` (that
     deterministic action whatever the run used, see ``roto_trl.modules.distributions``), or
     ``stochastic`` (seeded samples of the policy's Gaussian, clipped by the env as in training).
+    ``weights``: ``average`` (the moving average of the policy's weights when the run kept one, else
+    its weights) or ``trained`` (see ``trainers.checkpoint.agent_from_checkpoint``).
 
     Returns the result (return mean/std, mean episode length, episode metric means, physical
     metrics) and, with ``video``, the RGB frames of the first episode.
@@ -87,7 +91,7 @@ def evaluate_checkpoint(
         run_cfg.agent.deterministic_action = policy
     env = make_eval_env(run_cfg, episodes)
     try:
-        agent = agent_from_checkpoint({**state, "config": OmegaConf.to_container(run_cfg)}, env)
+        agent = agent_from_checkpoint({**state, "config": OmegaConf.to_container(run_cfg)}, env, weights)
         base = env.base_env
         render = (lambda: base.render(0)) if video else None
         result = run_episodes(env, agent, seed, render=render, stochastic=policy == "stochastic")
@@ -101,6 +105,7 @@ def evaluate_checkpoint(
         "episodes": int(episodes),
         "seed": int(seed),
         "policy": policy,
+        "weights": "average" if weights == "average" and POLICY_AVERAGE_KEY in state else "trained",
         "return_mean": float(result.returns.mean()),
         "return_std": float(result.returns.std(correction=0)),
         "episode_steps_mean": float(result.lengths.double().mean()),
@@ -118,6 +123,7 @@ def evaluate_run(
     video: bool = False,
     out: Path | None = None,
     policy: str = "deterministic",
+    weights: str = "average",
 ) -> Path:
     """Evaluate one checkpoint of a run, write ``eval.json`` (and the video), refresh ``index.md``."""
     run_dir = Path(run_dir)
@@ -126,7 +132,7 @@ def evaluate_run(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     seed = eval_seed(cfg) if seed is None else int(seed)
-    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video, policy)
+    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video, policy, weights)
     summary = {"run_dir": str(run_dir.resolve()), "checkpoint": str(path.resolve()), **summary}
     if video:
         video_path = run_dir / "videos" / f"eval-{path.stem}-s{seed}.mp4"

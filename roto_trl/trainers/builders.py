@@ -29,6 +29,7 @@ from roto_trl.objectives import (
 )
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.lr_schedule import KLAdaptiveLR
+from roto_trl.trainers.policy_average import PolicyAverage, checked_decay
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
 
@@ -144,6 +145,13 @@ def make_mean_bound_loss(cfg, agent: Agent) -> PolicyMeanBoundLoss | None:
     a = _cfg(cfg).agent  # a run saved before these keys existed gets the defaults (None)
     loss = PolicyMeanBoundLoss(agent.policy_head, bound=a.get("mean_bound"), coeff=a.get("mean_bound_coeff"))
     return loss if loss.coeff > 0 else None
+
+
+def make_policy_average(cfg, agent: Agent) -> PolicyAverage | None:
+    """The moving average of the policy's weights that evaluations use (``agent.policy_ema_decay``
+    > 0), or None (the default, 0: evaluations use the current weights)."""
+    decay = checked_decay(_cfg(cfg).agent.get("policy_ema_decay"))  # older runs lack the key: off
+    return PolicyAverage(agent, decay) if decay > 0 else None
 
 
 def make_advantage(cfg) -> GAE:

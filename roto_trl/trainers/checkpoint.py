@@ -7,6 +7,8 @@ A checkpoint is one ``torch.save`` dict:
                        and its optimiser (``AuxiliaryUpdate.state_dict``)
     frames, iteration  progress counters; best_eval_metrics (the evaluation best.pt holds,
                        with its ``frames``; None before the first)
+    policy_average     with agent.policy_ema_decay > 0: the moving average of the policy's weights,
+                       by their names in the agent's state dict (``trainers.policy_average``)
     rng                torch, numpy and the training env's reset generator
     config             the run's resolved config (a plain dict)
 """
@@ -21,9 +23,11 @@ from typing import Any
 import torch
 
 from roto_trl.trainers.errors import WriteError
+from roto_trl.trainers.policy_average import POLICY_AVERAGE_KEY
 
 LATEST = "latest.pt"
 BEST = "best.pt"
+WEIGHTS = ("average", "trained")  # agent_from_checkpoint's choice of the policy's weights
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
@@ -65,17 +69,25 @@ def load_checkpoint(path: Path, map_location: str | torch.device = "cpu") -> dic
     return state
 
 
-def agent_from_checkpoint(state: dict[str, Any], env):
+def agent_from_checkpoint(state: dict[str, Any], env, weights: str = "average"):
     """The trained :class:`~roto_trl.modules.agent.Agent` of a loaded checkpoint, in eval mode.
 
     Build ``env`` from the checkpoint's own settings (``builders.make_task_env(state["config"],
     ...)``); a mismatch in observations or actions is reported, not silently accepted.
+    ``weights`` (:data:`WEIGHTS`): ``average``, the policy's moving average when the run kept one
+    (``agent.policy_ema_decay`` > 0; the controller its evaluations used), else its weights;
+    ``trained``: the weights PPO trained, as a resumed run continues from them.
     """
     from roto_trl.trainers.builders import agent_for_env
 
+    if weights not in WEIGHTS:
+        raise ValueError(f"weights must be one of {list(WEIGHTS)}, got {weights!r}")
     agent = agent_for_env(state["config"], env)
+    agent_state = state["agent"]
+    if weights == "average":
+        agent_state = {**agent_state, **state.get(POLICY_AVERAGE_KEY, {})}
     try:
-        agent.load_state_dict(state["agent"])
+        agent.load_state_dict(agent_state)
     except RuntimeError as err:
         raise ValueError(f"the checkpoint does not fit this env's observations/actions: {err}") from err
     return agent.eval()

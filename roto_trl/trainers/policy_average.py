@@ -1,0 +1,100 @@
+"""An exponential moving average of the policy's weights, the controller a run is evaluated with
+when ``agent.policy_ema_decay`` > 0.
+
+Why: on Bounce the noise-free controller (the policy's mean) of plain PPO swings from one
+evaluation to the next and ends below its best, while the sampled policy that PPO optimises
+plateaus; an average of recent weights is the classic remedy for a final iterate that jitters
+around a good solution (Polyak averaging). Training never reads the average: PPO collects and
+updates with the current weights; evaluations in training (and so ``best.pt``'s choice) and
+``evaluate.py`` use the average.
+
+The average covers the policy's encoder and head (log-std included): the parameters named
+``encoder.*`` and ``policy_head.*`` in the agent's state dict, under which names a checkpoint
+stores it (``POLICY_AVERAGE_KEY``), so that ``agent.load_state_dict({**agent_state, **average})``
+gives the averaged controller.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import AbstractContextManager, contextmanager, nullcontext
+
+import torch
+
+from roto_trl.utils.cli import is_number
+
+POLICY_AVERAGE_KEY = "policy_average"  # a checkpoint's entry: {agent state-dict name: tensor}
+POLICY_PREFIXES = ("encoder.", "policy_head.")
+
+
+def checked_decay(decay) -> float:
+    """``decay`` as a float in [0, 1) (None: 0, off), or a one-line error naming the fix."""
+    if decay is None:
+        return 0.0
+    if not (is_number(decay) and 0.0 <= float(decay) < 1.0):
+        raise ValueError(
+            f"agent.policy_ema_decay must be a number in [0, 1) (0: off; 0.9: about the last 10 "
+            f"updates), got {decay!r}"
+        )
+    return float(decay)
+
+
+def policy_parameters(agent: torch.nn.Module) -> dict[str, torch.nn.Parameter]:
+    """The policy's parameters by their names in ``agent.state_dict()``: encoder and head."""
+    return {name: p for name, p in agent.named_parameters() if name.startswith(POLICY_PREFIXES)}
+
+
+class PolicyAverage:
+    """Keeps ``average <- decay * average + (1 - decay) * weights`` after every PPO update.
+
+    Args:
+        agent: the :class:`~roto_trl.modules.agent.Agent` being trained.
+        decay: in (0, 1): the weight of the old average per update; the average spans about
+            ``1 / (1 - decay)`` updates (0.95: 20 iterations).
+    """
+
+    def __init__(self, agent: torch.nn.Module, decay: float) -> None:
+        self.decay = checked_decay(decay)
+        if self.decay == 0.0:
+            raise ValueError("PolicyAverage needs agent.policy_ema_decay > 0 (0 means no average)")
+        self.params = policy_parameters(agent)
+        self.average = {name: p.detach().clone() for name, p in self.params.items()}
+
+    @torch.no_grad()
+    def update(self) -> None:
+        """Fold the current weights into the average (call after each PPO update)."""
+        names = list(self.params)
+        torch._foreach_lerp_(
+            [self.average[n] for n in names], [self.params[n].detach() for n in names], 1.0 - self.decay
+        )
+
+    @contextmanager
+    @torch.no_grad()
+    def swapped_in(self) -> Iterator[None]:
+        """The agent acts with the averaged weights inside the block; its own come back after."""
+        current = {name: p.detach().clone() for name, p in self.params.items()}
+        for name, p in self.params.items():
+            p.copy_(self.average[name])
+        try:
+            yield
+        finally:
+            for name, p in self.params.items():
+                p.copy_(current[name])
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        return {name: t.clone() for name, t in self.average.items()}
+
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
+        if set(state) != set(self.average):
+            differ = sorted(set(state) ^ set(self.average))[:3]
+            raise ValueError(
+                f"the checkpoint's {POLICY_AVERAGE_KEY} does not fit this agent (names {differ} "
+                "differ); resume with the run's own config"
+            )
+        for name, t in state.items():
+            self.average[name].copy_(t)
+
+
+def averaged(average: PolicyAverage | None) -> AbstractContextManager:
+    """``average.swapped_in()``, or a context that changes nothing when there is no average."""
+    return nullcontext() if average is None else average.swapped_in()
