@@ -36,10 +36,11 @@ class PolicyMeanBoundLoss(LossModule):
     |tanh(u)| > 0.9 on its controller's states at the best checkpoint, 83 % at 4 M frames).
     Inside [-bound, bound] the term is 0, so it only pulls back what has run past the knee.
     Measured in the README ("Results on a CPU"): on Bounce bound 1.0 removes the saturation,
-    held 2 of 3 seeds and raised the mean final policy from 18.6 to 27.1 bounces per 10 s, but
-    one seed fell back without any saturation; off by default until it is measured with the
-    recipe's critic and on Find. With ``coeff`` 0 it returns a zero loss
-    without a graph and only the diagnostics.
+    holds 2 of 3 seeds and raises the mean final policy (with the recipe's critic from 21.8 to
+    29.9 bounces per 10 s), but one seed falls back without any saturation. Off by default:
+    a bound of 1.0 also keeps the mean action within tanh(1) = 0.76 of each joint's range, and
+    on Find, whose mean never saturates, it scored less (see the README). With ``coeff`` 0 it
+    returns a zero loss without a graph and only the diagnostics.
 
     Input: a tensordict ``[B]`` with the latent ``z`` ``[B, Z]`` (``Agent.encode`` writes it).
     Output: ``loss_mean_bound`` and the detached diagnostics ``mean_saturation`` (the fraction of
