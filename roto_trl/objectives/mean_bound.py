@@ -39,7 +39,7 @@ class PolicyMeanBoundLoss(LossModule):
     holds 2 of 3 seeds and raises the mean final policy (with the recipe's critic from 21.8 to
     29.9 bounces per 10 s), but one seed falls back without any saturation. Off by default:
     a bound of 1.0 also keeps the mean action within tanh(1) = 0.76 of each joint's range, and
-    on Find, whose mean never saturates, it scored less (see the README). With ``coeff`` 0 it
+    on Find it scored less (see the README). With ``coeff`` 0 it
     returns a zero loss without a graph and only the diagnostics.
 
     Input: a tensordict ``[B]`` with the latent ``z`` ``[B, Z]`` (``Agent.encode`` writes it).
