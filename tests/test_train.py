@@ -19,7 +19,8 @@ from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.modules.normalization import ValueNormalizer
 from roto_trl.train import EXIT_NON_FINITE, check_config, train
 from roto_trl.trainers.builders import agent_for_env, make_train_env
-from roto_trl.trainers.checkpoint import load_checkpoint
+from roto_trl.trainers.checkpoint import agent_from_checkpoint, load_checkpoint
+from roto_trl.trainers.policy_average import policy_parameters
 from roto_trl.utils.resources import resource_dir
 
 FRAMES_PER_ITERATION = 8 * 16  # TINY: 8 worlds x 16 steps
@@ -213,6 +214,12 @@ def test_policy_average_is_what_the_run_evaluates_and_saves(tmp_path):
     saved = state["policy_average"]
     assert set(saved) == {k for k in state["agent"] if k.startswith(("encoder.", "policy_head."))}
     assert any(not torch.equal(saved[k], state["agent"][k]) for k in saved)  # two updates moved it
+    env = make_train_env(state["config"])
+    averaged = policy_parameters(agent_from_checkpoint(state, env))
+    trained = policy_parameters(agent_from_checkpoint(state, env, "trained"))
+    assert all(torch.equal(averaged[k], saved[k]) for k in saved)  # not the trained weights
+    assert all(torch.equal(trained[k], state["agent"][k]) for k in saved)
+    env.close()
     # evaluate.py replays the run's last evaluation (latest.pt, its seed and worlds) with the average
     last_eval = float(rows(run / "eval.csv")[-1]["return_mean"])
     replay = json.loads(evaluate_run(run, "latest", out=tmp_path / "average.json").read_text())

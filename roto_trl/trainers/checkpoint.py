@@ -23,7 +23,7 @@ from typing import Any
 import torch
 
 from roto_trl.trainers.errors import WriteError
-from roto_trl.trainers.policy_average import POLICY_AVERAGE_KEY
+from roto_trl.trainers.policy_average import POLICY_AVERAGE_KEY, load_policy_weights
 
 LATEST = "latest.pt"
 BEST = "best.pt"
@@ -83,11 +83,10 @@ def agent_from_checkpoint(state: dict[str, Any], env, weights: str = "average"):
     if weights not in WEIGHTS:
         raise ValueError(f"weights must be one of {list(WEIGHTS)}, got {weights!r}")
     agent = agent_for_env(state["config"], env)
-    agent_state = state["agent"]
-    if weights == "average":
-        agent_state = {**agent_state, **state.get(POLICY_AVERAGE_KEY, {})}
     try:
-        agent.load_state_dict(agent_state)
+        agent.load_state_dict(state["agent"])
+        if weights == "average" and POLICY_AVERAGE_KEY in state:
+            load_policy_weights(agent, state[POLICY_AVERAGE_KEY])
     except RuntimeError as err:
         raise ValueError(f"the checkpoint does not fit this env's observations/actions: {err}") from err
     return agent.eval()

@@ -10,8 +10,7 @@ updates with the current weights; evaluations in training (and so ``best.pt``'s 
 
 The average covers the policy's encoder and head (log-std included): the parameters named
 ``encoder.*`` and ``policy_head.*`` in the agent's state dict, under which names a checkpoint
-stores it (``POLICY_AVERAGE_KEY``), so that ``agent.load_state_dict({**agent_state, **average})``
-gives the averaged controller.
+stores it (``POLICY_AVERAGE_KEY``); ``load_policy_weights`` puts it into an agent.
 """
 
 from __future__ import annotations
@@ -42,6 +41,16 @@ def checked_decay(decay) -> float:
 def policy_parameters(agent: torch.nn.Module) -> dict[str, torch.nn.Parameter]:
     """The policy's parameters by their names in ``agent.state_dict()``: encoder and head."""
     return {name: p for name, p in agent.named_parameters() if name.startswith(POLICY_PREFIXES)}
+
+
+@torch.no_grad()
+def load_policy_weights(agent: torch.nn.Module, weights: dict[str, torch.Tensor]) -> None:
+    """Copy ``weights`` (names of :func:`policy_parameters`) into the agent's parameters. Not
+    through ``load_state_dict``: the agent's state dict also holds the same tensors under the
+    names of the TorchRL wrappers, which would load the trained weights over them."""
+    params = policy_parameters(agent)
+    for name, tensor in weights.items():
+        params[name].copy_(tensor)
 
 
 class PolicyAverage:
