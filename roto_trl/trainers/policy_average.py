@@ -48,7 +48,12 @@ def load_policy_weights(agent: torch.nn.Module, weights: dict[str, torch.Tensor]
     """Copy ``weights`` (names of :func:`policy_parameters`) into the agent's parameters. Not
     through ``load_state_dict``: the agent's state dict also holds the same tensors under the
     names of the TorchRL wrappers, which would load the trained weights over them."""
-    params = policy_parameters(agent)
+    copy_into(policy_parameters(agent), weights)
+
+
+@torch.no_grad()
+def copy_into(params: dict[str, torch.Tensor], weights: dict[str, torch.Tensor]) -> None:
+    """``params[name] <- weights[name]`` in place, for every name of ``weights``."""
     for name, tensor in weights.items():
         params[name].copy_(tensor)
 
@@ -82,13 +87,11 @@ class PolicyAverage:
     def swapped_in(self) -> Iterator[None]:
         """The agent acts with the averaged weights inside the block; its own come back after."""
         current = {name: p.detach().clone() for name, p in self.params.items()}
-        for name, p in self.params.items():
-            p.copy_(self.average[name])
+        copy_into(self.params, self.average)
         try:
             yield
         finally:
-            for name, p in self.params.items():
-                p.copy_(current[name])
+            copy_into(self.params, current)
 
     def state_dict(self) -> dict[str, torch.Tensor]:
         return {name: t.clone() for name, t in self.average.items()}
@@ -100,8 +103,7 @@ class PolicyAverage:
                 f"the checkpoint's {POLICY_AVERAGE_KEY} does not fit this agent (names {differ} "
                 "differ); resume with the run's own config"
             )
-        for name, t in state.items():
-            self.average[name].copy_(t)
+        copy_into(self.average, state)
 
 
 def averaged(average: PolicyAverage | None) -> AbstractContextManager:
