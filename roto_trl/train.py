@@ -41,6 +41,7 @@ from roto_trl.envs.factory import task_config
 from roto_trl.modules.agent import checked_critic_sizes
 from roto_trl.objectives.mean_bound import checked_mean_bound
 from roto_trl.trainers.builders import (
+    advantage_norm_scope,
     agent_for_env,
     compile_agent,
     eval_seed,
@@ -104,6 +105,7 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"agent.clip_value must be > 0 or null (no value clipping), got {a.clip_value!r}")
     checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))  # older runs lack both: defaults
     checked_decay(a.get("policy_ema_decay"))
+    advantage_norm_scope(a.get("normalize_advantage"))
     if cfg.logger.backend not in BACKENDS:
         raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
     check_device(cfg.device)

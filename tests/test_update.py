@@ -18,6 +18,7 @@ from roto_trl.train import check_config
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.builders import (
     agent_for_env,
+    make_advantage,
     make_lr_schedule,
     make_mean_bound_loss,
     make_optimizer,
@@ -228,6 +229,37 @@ def test_value_loss_is_clipped_by_default_and_plain_with_clip_value_null():
     for bad in ("0", "-0.1", "true"):
         with pytest.raises(ValueError, match=r"agent.clip_value must be > 0 or null"):
             check_config(compose_cfg(["+exp=bounce_ppo", f"agent.clip_value={bad}"]))
+
+
+def test_advantages_are_standardised_per_minibatch_by_default_or_over_the_whole_rollout():
+    """One world, two steps, gamma 0.5, lambda 1, values 0, rewards 1 then 3 (the episode ends
+    at the second step): GAE 1 + 0.5 x 3 = 2.5 and 3, the value targets the same. Standardised
+    over the rollout (mean 2.75, std 0.3536): -0.7071 and 0.7071; the targets stay 2.5 and 3."""
+
+    def rollout():
+        zeros = torch.zeros(1, 2, 1)
+        done = torch.tensor([[[False], [True]]])
+        nxt = {"reward": torch.tensor([[[1.0], [3.0]]]), "done": done, "terminated": done.clone()}
+        nxt["state_value"] = zeros.clone()
+        return TensorDict({"state_value": zeros.clone(), "next": nxt}, [1, 2])
+
+    agent = Agent(("prop",), P, A)
+    expected = {"minibatch": [2.5, 3.0], "batch": [-0.70711, 0.70711], "none": [2.5, 3.0]}
+    for scope, advantages in expected.items():
+        values = ["agent.gamma=0.5", "agent.lmbda=1.0", f"agent.normalize_advantage={scope}"]
+        cfg = compose_cfg(["+exp=bounce_ppo", *values])
+        check_config(cfg)
+        td = rollout()
+        make_advantage(cfg)(td)
+        assert td["advantage"].flatten().tolist() == pytest.approx(advantages, abs=1e-4)
+        assert td["value_target"].flatten().tolist() == pytest.approx([2.5, 3.0])
+        assert make_ppo_loss(cfg, agent).normalize_advantage == (scope == "minibatch")  # in the loss
+    legacy = compose_cfg(["+exp=bounce_ppo", "agent.normalize_advantage=true"])  # runs saved before
+    assert make_ppo_loss(legacy, agent).normalize_advantage and not make_advantage(legacy).average_gae
+    bad = compose_cfg(["+exp=bounce_ppo", "agent.normalize_advantage=rollout"])
+    names_the_choices = r"agent\.normalize_advantage must be one of \['minibatch', 'batch', 'none'\]"
+    with pytest.raises(ValueError, match=names_the_choices):
+        check_config(bad)
 
 
 def test_the_shared_agent_reads_the_policys_latent_for_its_value():

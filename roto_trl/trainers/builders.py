@@ -133,7 +133,7 @@ def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
         entropy_coeff=float(a.entropy_coeff) / agent.n_actions,
         critic_coeff=float(a.critic_coeff),
         loss_critic_type="l2",
-        normalize_advantage=bool(a.normalize_advantage),
+        normalize_advantage=advantage_norm_scope(a.get("normalize_advantage")) == "minibatch",
         functional=False,  # the heads' own parameters: one optimiser updates them with the encoder
     )
 
@@ -154,14 +154,37 @@ def make_policy_average(cfg, agent: Agent) -> PolicyAverage | None:
     return PolicyAverage(agent, decay) if decay > 0 else None
 
 
+ADVANTAGE_NORM_SCOPES = ("minibatch", "batch", "none")
+
+
+def advantage_norm_scope(value) -> str:
+    """``agent.normalize_advantage`` as one of ``ADVANTAGE_NORM_SCOPES``.
+
+    ``minibatch`` (the default): each PPO minibatch's advantages are standardised in the loss;
+    ``batch``: the whole rollout's, once after GAE (rsl_rl's and skrl's default); ``none``: raw.
+    Configs saved before the scopes existed hold a bool: true is ``minibatch``, false ``none``.
+    """
+    if value is None or value is True:
+        return "minibatch"
+    if value is False:
+        return "none"
+    if value not in ADVANTAGE_NORM_SCOPES:
+        choices = list(ADVANTAGE_NORM_SCOPES)
+        raise ValueError(f"agent.normalize_advantage must be one of {choices}, got {value!r}")
+    return str(value)
+
+
 def make_advantage(cfg) -> GAE:
     """GAE over the ``state_value`` entries the loop writes (no value network of its own).
 
     ``("next", "terminated")`` stops bootstrapping; a time-limit truncation (``done`` without
-    ``terminated``) bootstraps from the value of the episode's last observation.
+    ``terminated``) bootstraps from the value of the episode's last observation. With
+    ``agent.normalize_advantage=batch`` the rollout's advantages [N, R] are standardised here
+    (the value targets stay the unstandardised advantage + value).
     """
     a = _cfg(cfg).agent
-    return GAE(gamma=float(a.gamma), lmbda=float(a.lmbda), value_network=None, average_gae=False)
+    whole_batch = advantage_norm_scope(a.get("normalize_advantage")) == "batch"
+    return GAE(gamma=float(a.gamma), lmbda=float(a.lmbda), value_network=None, average_gae=whole_batch)
 
 
 def make_collector(cfg, env: TransformedEnv, agent: Agent) -> Collector:
