@@ -106,6 +106,8 @@ def check_config(cfg: DictConfig) -> None:
     checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))  # older runs lack both: defaults
     checked_decay(a.get("policy_ema_decay"))
     advantage_norm_scope(a.get("normalize_advantage"))
+    if not isinstance(a.get("anneal_step_size", False), bool):
+        raise ValueError(f"agent.anneal_step_size must be true or false, got {a.anneal_step_size!r}")
     if cfg.logger.backend not in BACKENDS:
         raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
     check_device(cfg.device)
@@ -277,7 +279,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     advantage = make_advantage(cfg)
     optimizer = make_optimizer(cfg, agent)
     params = [p for group in optimizer.param_groups for p in group["params"]]
-    lr_schedule = make_lr_schedule(cfg, optimizer)  # None: agent.lr throughout
+    lr_schedule = make_lr_schedule(cfg, optimizer)  # None: agent.lr throughout (optionally annealed)
     policy_average = make_policy_average(cfg, agent)  # None unless agent.policy_ema_decay > 0
     aux = make_aux_update(cfg, agent, env)  # the self-supervised objective, or None
 
@@ -365,6 +367,8 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
 
             t0 = time.perf_counter()
             store_rollout(batch, agent, advantage, buffer, aux)
+            if lr_schedule is not None:  # the anneal's ramp: the fraction of the budget trained before
+                lr_schedule.set_progress((frames - batch.numel()) / cfg.total_frames)
             losses, aux_rows = ppo_update(
                 cfg, buffer, agent, loss_fn, optimizer, params, aux, lr_schedule, mean_bound
             )

@@ -24,7 +24,7 @@ from roto_trl.trainers.builders import (
     make_optimizer,
     make_ppo_loss,
 )
-from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3
+from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3, remaining
 from roto_trl.trainers.policy_average import PolicyAverage, policy_parameters
 from roto_trl.trainers.ppo import minibatch_loss, saturation
 
@@ -300,6 +300,31 @@ def test_lr_schedule_config():
     assert optimizer.param_groups[0]["lr"] == pytest.approx(2e-4)
     with pytest.raises(ValueError, match=r"agent\.lr_schedule must be one of"):
         make_lr_schedule(compose_cfg(["+exp=bounce_ppo", "agent.lr_schedule=cosine"]), optimizer)
+
+
+def test_the_step_size_anneals_linearly_to_zero_over_the_budget():
+    """Fixed rate 3e-4: half-way 1.5e-4, at the end 0. KL rule, target 0.008 annealed half-way to
+    0.004: a KL of 0.01 (between 0.004 and 0.016, kept without the anneal) is now above twice the
+    target, so the rate is divided by 1.5."""
+    assert remaining(3e-4, 0.5) == pytest.approx(1.5e-4) and remaining(3e-4, 1.2) == 0.0
+    agent = Agent(("prop",), P, A)
+    optimizer = torch.optim.Adam(agent.parameters(), lr=3e-4)
+    fixed = make_lr_schedule(
+        compose_cfg(["+exp=bounce_ppo", "agent.lr=3e-4", "agent.anneal_step_size=true"]), optimizer
+    )
+    fixed.set_progress(0.5)
+    assert optimizer.param_groups[0]["lr"] == pytest.approx(1.5e-4)
+    assert fixed.step(1.0) == pytest.approx(1.5e-4)  # the KL does not move the annealed fixed rate
+    fixed.set_progress(1.0)
+    assert optimizer.param_groups[0]["lr"] == 0.0
+    for anneal, expected in ((False, 3e-4), (True, 2e-4)):
+        optimizer = torch.optim.Adam(agent.parameters(), lr=3e-4)
+        values = ["agent.lr_schedule=kl_adaptive", f"agent.anneal_step_size={anneal}"]
+        schedule = make_lr_schedule(compose_cfg(["+exp=bounce_ppo", *values]), optimizer)
+        schedule.set_progress(0.5)
+        assert schedule.step(0.01) == pytest.approx(expected)
+    with pytest.raises(ValueError, match=r"agent\.anneal_step_size must be true or false"):
+        check_config(compose_cfg(["+exp=bounce_ppo", "agent.anneal_step_size=linear"]))
 
 
 def test_the_log_std_can_keep_the_fixed_rate_while_the_kl_rule_moves_the_rest():

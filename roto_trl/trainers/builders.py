@@ -28,7 +28,7 @@ from roto_trl.objectives import (
     TactileReconstructionLoss,
 )
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
-from roto_trl.trainers.lr_schedule import KLAdaptiveLR
+from roto_trl.trainers.lr_schedule import KLAdaptiveLR, LinearDecayLR
 from roto_trl.trainers.policy_average import PolicyAverage, checked_decay
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
@@ -237,13 +237,18 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
 LR_SCHEDULES = ("fixed", "kl_adaptive")
 
 
-def make_lr_schedule(cfg, optimizer: torch.optim.Optimizer) -> KLAdaptiveLR | None:
-    """``agent.lr_schedule``: None for ``fixed``, else the KL-adaptive rate (``agent.kl_target``)."""
+def make_lr_schedule(cfg, optimizer: torch.optim.Optimizer) -> KLAdaptiveLR | LinearDecayLR | None:
+    """``agent.lr_schedule``: the KL-adaptive rate (``agent.kl_target``) for ``kl_adaptive``; for
+    ``fixed`` None (``agent.lr`` throughout), or with ``agent.anneal_step_size`` the rate's
+    linear decay to zero over ``total_frames``."""
     a = _cfg(cfg).agent
     schedule = a.get("lr_schedule", "fixed")  # configs saved before the option existed: fixed
     if schedule not in LR_SCHEDULES:
         raise ValueError(f"agent.lr_schedule must be one of {list(LR_SCHEDULES)}, got {schedule!r}")
-    return KLAdaptiveLR(optimizer, float(a.kl_target)) if schedule == "kl_adaptive" else None
+    anneal = bool(a.get("anneal_step_size", False))  # older runs lack the key: off
+    if schedule == "kl_adaptive":
+        return KLAdaptiveLR(optimizer, float(a.kl_target), anneal=anneal)
+    return LinearDecayLR(optimizer, float(a.lr)) if anneal else None
 
 
 SSL_OBJECTIVES = ("none", "tr", "fr", "fd", "tfd")
