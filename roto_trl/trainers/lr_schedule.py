@@ -9,7 +9,8 @@ skrl's KL estimate (``kl_k3``), as skrl (the library the authors' agent is built
 ``agent.anneal_step_size=true`` (off by default) shrinks the step size linearly to zero over
 ``total_frames``, as CleanRL's ``anneal_lr``: the fixed rate itself (``LinearDecayLR``), or with
 the KL rule its target, so that the rule lowers the rate (with the rate annealed instead, the
-rule would raise it back). Both follow the frames trained, so a resumed run continues the ramp.
+rule would raise it back; a group outside the rule, ``log_std_fixed_lr``'s, keeps its rate).
+Both follow the frames trained, so a resumed run continues the ramp.
 """
 
 from __future__ import annotations
