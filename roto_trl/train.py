@@ -39,6 +39,11 @@ from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.analysis.plots import plot_run
 from roto_trl.envs.factory import task_config
 from roto_trl.modules.agent import checked_critic_sizes
+from roto_trl.modules.distributions import (
+    DEFAULT_ACTION_LOG_PROB,
+    DEFAULT_DETERMINISTIC_ACTION,
+    policy_distribution_kwargs,
+)
 from roto_trl.objectives.mean_bound import checked_mean_bound
 from roto_trl.trainers.builders import (
     advantage_norm_scope,
@@ -106,6 +111,10 @@ def check_config(cfg: DictConfig) -> None:
     checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))  # older runs lack both: defaults
     checked_decay(a.get("policy_ema_decay"))
     advantage_norm_scope(a.get("normalize_advantage"))
+    policy_distribution_kwargs(  # runs from before the options: the defaults
+        str(a.get("deterministic_action", DEFAULT_DETERMINISTIC_ACTION)),
+        str(a.get("action_log_prob", DEFAULT_ACTION_LOG_PROB)),
+    )
     if not isinstance(a.get("anneal_step_size", False), bool):
         raise ValueError(f"agent.anneal_step_size must be true or false, got {a.anneal_step_size!r}")
     if cfg.logger.backend not in BACKENDS:

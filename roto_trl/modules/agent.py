@@ -17,7 +17,12 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 from torch import nn
 from torchrl.modules import ActorValueOperator, ProbabilisticActor, ValueOperator
 
-from roto_trl.modules.distributions import DEFAULT_DETERMINISTIC_ACTION, policy_distribution
+from roto_trl.modules.distributions import (
+    DEFAULT_ACTION_LOG_PROB,
+    DEFAULT_DETERMINISTIC_ACTION,
+    ClippedActionNormal,
+    policy_distribution_kwargs,
+)
 from roto_trl.modules.networks import ENCODER_SIZES, Encoder, PolicyHead, ValueHead
 from roto_trl.modules.normalization import ValueNormalizer
 
@@ -65,6 +70,9 @@ class Agent(nn.Module):
         deterministic_action: the evaluation action, ``applied_mean`` (the mean of the clipped
             action the env applies) or ``gaussian_mean`` (skrl's, the authors'); see
             ``roto_trl.modules.distributions``.
+        action_log_prob: the log-probability of PPO's ratio, ``gaussian`` (the unclipped
+            sample's density, the paper's) or ``clipped`` (the applied action's probability,
+            tail masses at the bounds); see ``roto_trl.modules.distributions``.
         value_norm: True: the value head learns returns normalised by running statistics
             (``ValueNormalizer``, the authors' skrl setup); False: raw returns (rsl_rl's).
         critic_encoder_sizes: the layer sizes of the critic's own encoder (``shared_encoder``
@@ -82,6 +90,7 @@ class Agent(nn.Module):
         deterministic_action: str = DEFAULT_DETERMINISTIC_ACTION,
         value_norm: bool = True,
         critic_encoder_sizes: tuple[int, ...] | None = None,
+        action_log_prob: str = DEFAULT_ACTION_LOG_PROB,
     ) -> None:
         super().__init__()
         critic_encoder_sizes = checked_critic_sizes(critic_encoder_sizes, shared_encoder)
@@ -99,10 +108,11 @@ class Agent(nn.Module):
         self.actor_head = ProbabilisticActor(
             TensorDictModule(self.policy_head, in_keys=[LATENT_KEY], out_keys=["loc", "scale"]),
             in_keys=["loc", "scale"],
-            distribution_class=policy_distribution(deterministic_action),
+            distribution_class=ClippedActionNormal,
+            distribution_kwargs=policy_distribution_kwargs(deterministic_action, action_log_prob),
             return_log_prob=True,
         )
-        self.deterministic_action = deterministic_action
+        self.deterministic_action, self.action_log_prob = deterministic_action, action_log_prob
         self.shared_encoder = bool(shared_encoder)
         if self.shared_encoder:  # the paper's agent: the value head reads the policy's z
             self.critic_head = ValueOperator(self.value_head, in_keys=[LATENT_KEY])

@@ -18,7 +18,21 @@ applies 0.51 on average.
   behind the authors' published curves.
 
 The two agree as the standard deviation shrinks (the scale goes to 0: clip(loc)). Training
-samples, log-probabilities and entropies are the Gaussian's either way.
+samples and entropies are the Gaussian's either way.
+
+``agent.action_log_prob`` chooses the log-probability PPO's ratio is made of:
+
+- ``gaussian`` (default; the paper's skrl agent, rsl_rl, CleanRL): the Gaussian's density at the
+  unclipped sample. A sample beyond a bound counts by how far beyond it lies, although the env
+  applies the bound whatever the distance: with a mean near a bound, PPO's gradient then pushes
+  the mean and the standard deviation on differences the env never sees.
+- ``clipped``: the probability of the action the env applies (:func:`clipped_normal_log_prob`):
+  the density inside the bounds, the Gaussian's mass beyond a bound for a sample at or past it
+  (the clipped action policy gradient, Fujita and Maeda 2018). Its policy is the distribution
+  of the applied action, whose mean is ``applied_mean``.
+
+The stored action stays the unclipped sample: it lies beyond a bound exactly when the applied
+action is the bound, so both choices read the same tensordicts.
 """
 
 from __future__ import annotations
@@ -31,8 +45,11 @@ from torchrl.modules import IndependentNormal
 ACTION_BOUNDS = (-1.0, 1.0)  # every task's action_spec; the env clips the policy's samples to it
 DETERMINISTIC_ACTIONS = ("applied_mean", "gaussian_mean")
 DEFAULT_DETERMINISTIC_ACTION = "applied_mean"  # also for runs saved before the option existed
+ACTION_LOG_PROBS = ("gaussian", "clipped")
+DEFAULT_ACTION_LOG_PROB = "gaussian"  # also for runs saved before the option existed
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
+_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
 def clipped_normal_mean(
@@ -52,10 +69,36 @@ def clipped_normal_mean(
     return low * cdf_a + high * (1.0 - cdf_b) + loc * (cdf_b - cdf_a) + scale * (pdf_a - pdf_b)
 
 
+def clipped_normal_log_prob(
+    value: torch.Tensor,
+    loc: torch.Tensor,
+    scale: torch.Tensor,
+    low: float = ACTION_BOUNDS[0],
+    high: float = ACTION_BOUNDS[1],
+) -> torch.Tensor:
+    """log P(clip(a, low, high) = clip(value, low, high)) for a ~ N(loc, scale^2), elementwise.
+
+    Strictly inside the bounds the Gaussian's log-density at ``value``; at or below ``low``
+    log Phi((low - loc) / scale), the mass the Gaussian puts below it; at or above ``high``
+    log Phi((loc - high) / scale). ``torch.special.log_ndtr`` keeps the tails finite and their
+    gradients exact far past a bound. Any matching shapes; ``scale`` > 0.
+    """
+    inside = -0.5 * ((value - loc) / scale).square() - scale.log() - _LOG_SQRT_2PI
+    below = torch.special.log_ndtr((low - loc) / scale)
+    above = torch.special.log_ndtr((loc - high) / scale)
+    return torch.where(value <= low, below, torch.where(value >= high, above, inside))
+
+
 class ClippedActionNormal(IndependentNormal):
-    """TorchRL's ``IndependentNormal`` whose deterministic sample is the mean of the action the
-    env applies, :func:`clipped_normal_mean` of ``loc`` and ``scale`` ``[*B, n_actions]``
-    within ``low``/``high``; sampling, ``log_prob`` and ``entropy`` are the Gaussian's."""
+    """TorchRL's ``IndependentNormal`` ``[*B, n_actions]`` for actions the env clips to
+    ``low``/``high``.
+
+    ``deterministic_action``: the deterministic sample is the mean of the applied action
+    (``applied_mean``, :func:`clipped_normal_mean`) or the Gaussian's mean (``gaussian_mean``).
+    ``action_log_prob``: ``log_prob`` ``[*B]`` is the Gaussian's (``gaussian``) or the applied
+    action's (``clipped``, :func:`clipped_normal_log_prob` summed over the action dimensions).
+    Sampling and ``entropy`` are the Gaussian's.
+    """
 
     def __init__(
         self,
@@ -63,21 +106,33 @@ class ClippedActionNormal(IndependentNormal):
         scale: torch.Tensor,
         low: float = ACTION_BOUNDS[0],
         high: float = ACTION_BOUNDS[1],
+        deterministic_action: str = DEFAULT_DETERMINISTIC_ACTION,
+        action_log_prob: str = DEFAULT_ACTION_LOG_PROB,
         **kwargs,
     ) -> None:
         self.low, self.high = float(low), float(high)
+        self.deterministic_action, self.action_log_prob = deterministic_action, action_log_prob
         super().__init__(loc, scale, **kwargs)
 
     @property
     def deterministic_sample(self) -> torch.Tensor:
+        if self.deterministic_action == "gaussian_mean":
+            return self.mean
         return clipped_normal_mean(self.mean, self.stddev, self.low, self.high)
 
+    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        if self.action_log_prob == "gaussian":
+            return super().log_prob(value)
+        return clipped_normal_log_prob(value, self.mean, self.stddev, self.low, self.high).sum(-1)
 
-def policy_distribution(deterministic_action: str) -> type[IndependentNormal]:
-    """The distribution class for ``agent.deterministic_action``, or a ``ValueError`` naming the choices."""
-    if deterministic_action not in DETERMINISTIC_ACTIONS:
-        raise ValueError(
-            f"agent.deterministic_action must be one of {list(DETERMINISTIC_ACTIONS)}, "
-            f"got {deterministic_action!r}"
-        )
-    return ClippedActionNormal if deterministic_action == "applied_mean" else IndependentNormal
+
+def policy_distribution_kwargs(deterministic_action: str, action_log_prob: str) -> dict[str, str]:
+    """``ClippedActionNormal``'s keyword arguments for the agent's two options, or a
+    ``ValueError`` naming the choices of the one that is unknown."""
+    for key, value, choices in (
+        ("deterministic_action", deterministic_action, DETERMINISTIC_ACTIONS),
+        ("action_log_prob", action_log_prob, ACTION_LOG_PROBS),
+    ):
+        if value not in choices:
+            raise ValueError(f"agent.{key} must be one of {list(choices)}, got {value!r}")
+    return {"deterministic_action": deterministic_action, "action_log_prob": action_log_prob}

@@ -19,7 +19,7 @@ from torchrl.objectives.value import GAE
 from roto_trl.data.memory import AuxMemory
 from roto_trl.envs.factory import make_env
 from roto_trl.modules.agent import Agent
-from roto_trl.modules.distributions import DEFAULT_DETERMINISTIC_ACTION
+from roto_trl.modules.distributions import DEFAULT_ACTION_LOG_PROB, DEFAULT_DETERMINISTIC_ACTION
 from roto_trl.objectives import (
     ForwardDynamicsLoss,
     FullReconstructionLoss,
@@ -93,6 +93,7 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
         deterministic_action=str(cfg.agent.get("deterministic_action", DEFAULT_DETERMINISTIC_ACTION)),
         value_norm=bool(cfg.agent.get("value_norm", True)),  # runs from before the option: on
         critic_encoder_sizes=cfg.agent.get("critic_encoder_sizes"),  # null: the policy encoder's
+        action_log_prob=str(cfg.agent.get("action_log_prob", DEFAULT_ACTION_LOG_PROB)),  # old runs: gaussian
     )
     return agent.to(cfg.device)
 
