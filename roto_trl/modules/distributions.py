@@ -30,6 +30,10 @@ samples and entropies are the Gaussian's either way.
   the density inside the bounds, the Gaussian's mass beyond a bound for a sample at or past it
   (the clipped action policy gradient, Fujita and Maeda 2018). Its policy is the distribution
   of the applied action, whose mean is ``applied_mean``.
+  Measured on Bounce (``bounce_ppo +profile=cpu``, 3 seeds, 2 M frames; README "Results on a
+  CPU"): best checkpoints 37.2 / 36.1 / 41.5 bounces per 10 s, final policies 14.9 / 20.8 /
+  21.6, against 32.1 / 23.8 / 47.4 and 31.1 / 11.0 / 23.2 with ``gaussian``: it falls back as
+  the default does, so the default stays.
 
 The stored action stays the unclipped sample: it lies beyond a bound exactly when the applied
 action is the bound, so both choices read the same tensordicts.
