@@ -32,8 +32,9 @@ samples and entropies are the Gaussian's either way.
   of the applied action, whose mean is ``applied_mean``.
   Measured on Bounce (``bounce_ppo +profile=cpu``, 3 seeds, 2 M frames; README "Results on a
   CPU"): best checkpoints 37.2 / 36.1 / 41.5 bounces per 10 s, final policies 14.9 / 20.8 /
-  21.6, against 32.1 / 23.8 / 47.4 and 31.1 / 11.0 / 23.2 with ``gaussian``: it falls back as
-  the default does. On Find (``find_ppo``, same runs) 0.37 / 0.45 / 0.62 within 3 cm against
+  21.6, against 32.1 / 23.8 / 47.4 and 31.1 / 11.0 / 23.2 with ``gaussian`` (an earlier
+  session; rerun beside these, seeds 1 and 2 scored 47.2 / 41.9 and 25.3 / 15.2): it falls back
+  as the default does. On Find (``find_ppo``, same runs) 0.37 / 0.45 / 0.62 within 3 cm against
   0.53 / 0.50 / 0.67. So the default stays.
 
 The stored action stays the unclipped sample: it lies beyond a bound exactly when the applied
