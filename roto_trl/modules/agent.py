@@ -112,7 +112,7 @@ class Agent(nn.Module):
             distribution_kwargs=policy_distribution_kwargs(deterministic_action, action_log_prob),
             return_log_prob=True,
         )
-        self.deterministic_action, self.action_log_prob = deterministic_action, action_log_prob
+        self.deterministic_action = deterministic_action
         self.shared_encoder = bool(shared_encoder)
         if self.shared_encoder:  # the paper's agent: the value head reads the policy's z
             self.critic_head = ValueOperator(self.value_head, in_keys=[LATENT_KEY])

@@ -55,7 +55,6 @@ ACTION_LOG_PROBS = ("gaussian", "clipped")
 DEFAULT_ACTION_LOG_PROB = "gaussian"  # also for runs saved before the option existed
 
 _INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
-_LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
 
 def clipped_normal_mean(
@@ -89,7 +88,7 @@ def clipped_normal_log_prob(
     log Phi((loc - high) / scale). ``torch.special.log_ndtr`` keeps the tails finite and their
     gradients exact far past a bound. Any matching shapes; ``scale`` > 0.
     """
-    inside = -0.5 * ((value - loc) / scale).square() - scale.log() - _LOG_SQRT_2PI
+    inside = torch.distributions.Normal(loc, scale, validate_args=False).log_prob(value)
     below = torch.special.log_ndtr((low - loc) / scale)
     above = torch.special.log_ndtr((loc - high) / scale)
     return torch.where(value <= low, below, torch.where(value >= high, above, inside))
