@@ -11,14 +11,26 @@ For every task, N and thread count it times, in the same process and one after t
 Rounds alternate (median reported) so that drift in the machine's speed hits all three. The
 ratio env / raw is the figure of merit (goal: >= 0.9 at N=1024, 2 threads).
 
+With ``--breakdown`` it prints instead where an env step's wall time goes, in microseconds per
+control step (each part without the parts it calls): the physics (``mujoco.rollout``, the reset
+worlds' settling step included), our env's step and reset outside the physics, the transforms'
+step and reset, and TorchRL's own bookkeeping (``EnvBase.step``, ``TransformedEnv``,
+``maybe_reset``, ``step_mdp``). The parts outside the physics are Python on the main thread.
+They too move with the machine's state: on the 2-core VM the same Python took about twice as
+long right after a 15 ms stretch of physics (or of anything else) as when run back to back, so
+compare code changes by alternating runs of the two versions, not against an old table.
+
     python benchmarks/env_throughput.py      # the full table (several minutes)
     python benchmarks/env_throughput.py --tasks bounce --num-envs 1024 --threads 2
+    python benchmarks/env_throughput.py --tasks bounce --num-envs 256 --threads 2 --breakdown
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
 import time
+from collections import defaultdict
 
 import gymnasium
 import mujoco
@@ -109,6 +121,102 @@ def measure(task: str, num_envs: int, threads: int, steps: int, rounds: int) -> 
     return float(np.median(raw_sps)), float(np.median(env_sps)), float(np.median(gym_sps))
 
 
+class SectionTimer:
+    """Wall time of named sections, each without the time of the sections it calls (ns)."""
+
+    def __init__(self) -> None:
+        self.exclusive: dict[str, int] = defaultdict(int)
+        self._children: list[int] = []
+
+    def wrap(self, obj, method: str, label: str) -> None:
+        """Time ``obj.method`` as ``label`` from now on (an instance attribute shadows the class's)."""
+        inner = getattr(obj, method)
+
+        @functools.wraps(inner)
+        def timed(*args, **kwargs):
+            self._children.append(0)
+            start = time.perf_counter_ns()
+            try:
+                return inner(*args, **kwargs)
+            finally:
+                elapsed = time.perf_counter_ns() - start
+                self.exclusive[label] += elapsed - self._children.pop()
+                if self._children:
+                    self._children[-1] += elapsed
+
+        setattr(obj, method, timed)
+
+
+BREAKDOWN_PARTS = (
+    "physics",
+    "env step (ours)",
+    "env reset (ours)",
+    "transforms: step",
+    "transforms: reset",
+    "TorchRL bookkeeping",
+)
+
+
+def breakdown(task: str, num_envs: int, threads: int, steps: int) -> tuple[dict[str, float], float]:
+    """Microseconds per control step of each part of ``step_and_maybe_reset``, and the share of
+    steps on which some world reset, over ``steps`` steps with random actions after a warm-up."""
+    env = make_env(task, num_envs, seed=0, num_threads=threads)
+    base = env.base_env
+    timer = SectionTimer()
+    timer.wrap(env, "step_and_maybe_reset", "TorchRL bookkeeping")
+    timer.wrap(base, "_rollout", "physics")
+    timer.wrap(base, "_step", "env step (ours)")
+    timer.wrap(base, "_reset", "env reset (ours)")
+    for transform in env.transform:
+        timer.wrap(transform, "_step", "transforms: step")
+        timer.wrap(transform, "_reset", "transforms: reset")
+    resets = [0]
+    on_reset = base._on_reset_mask
+
+    def count_reset(idx):
+        resets[0] += 1
+        return on_reset(idx)
+
+    base._on_reset_mask = count_reset
+    gen = torch.Generator().manual_seed(0)
+    td = env.reset()
+    for warm_up in (True, False):
+        timer.exclusive.clear()
+        resets[0] = 0
+        for _ in range(max(steps // 4, 10) if warm_up else steps):
+            td.set("action", torch.rand(num_envs, base.n_actions, generator=gen) * 2 - 1)
+            _, td = env.step_and_maybe_reset(td)
+    env.close()
+    return {part: timer.exclusive[part] / steps / 1e3 for part in BREAKDOWN_PARTS}, resets[0] / steps
+
+
+def print_breakdowns(args: argparse.Namespace) -> None:
+    """The ``--breakdown`` table: microseconds per control step of each part."""
+    short = ("physics", "ours step", "ours reset", "tf step", "tf reset", "torchrl")
+    header = (
+        f"{'task':<8} {'N':>5} {'thr':>3} {'resets':>6} "
+        + " ".join(f"{name:>10}" for name in short)
+        + f" {'outside':>8} {'phys share':>10}"
+    )
+    print("microseconds per control step (median of rounds); 'resets': share of steps with a reset")
+    print(header)
+    print("-" * len(header))
+    for task in args.tasks:
+        for n in args.num_envs:
+            for threads in args.threads:
+                rounds = [breakdown(task, n, threads, args.steps) for _ in range(args.rounds)]
+                parts = {p: float(np.median([r[0][p] for r in rounds])) for p in BREAKDOWN_PARTS}
+                reset_share = float(np.median([r[1] for r in rounds]))
+                outside = sum(v for p, v in parts.items() if p != "physics")
+                share = parts["physics"] / (parts["physics"] + outside)
+                print(
+                    f"{task:<8} {n:>5} {threads:>3} {reset_share:>6.2f} "
+                    + " ".join(f"{parts[p]:>10,.0f}" for p in BREAKDOWN_PARTS)
+                    + f" {outside:>8,.0f} {share:>10.2f}",
+                    flush=True,
+                )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     parser.add_argument("--tasks", nargs="+", default=sorted(TASKS), choices=sorted(TASKS))
@@ -116,8 +224,14 @@ def main() -> None:
     parser.add_argument("--threads", nargs="+", type=int, default=[1, 2])
     parser.add_argument("--steps", type=int, default=30, help="timed control steps per round")
     parser.add_argument("--rounds", type=int, default=3, help="alternating timing rounds per cell")
+    parser.add_argument(
+        "--breakdown", action="store_true", help="print where a step's time goes instead of the rates"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.breakdown:
+        print_breakdowns(args)
+        return
 
     print(f"mujoco {mujoco.__version__}, torch {torch.__version__}, control steps/s (N x steps / s)")
     header = (

@@ -1,4 +1,4 @@
-"""The training benchmark keeps running as the trainer changes (its numbers are not checked here)."""
+"""The benchmarks keep running as the trainer and the env change (their speeds are not checked here)."""
 
 import re
 import subprocess
@@ -55,3 +55,16 @@ def test_learning_vs_peers_trains_ours_then_reads_a_finished_run(tmp_path):
         [*common, "--ours-run", str(tmp_path / "ours"), "agent.lr=1e-3"], capture_output=True, text=True
     )
     assert refused.returncode == 2 and "--ours-run reads a finished run" in refused.stderr
+
+
+def test_env_breakdown_accounts_for_the_whole_step():
+    command = [sys.executable, str(BENCHMARKS / "env_throughput.py"), "--breakdown"]
+    command += ["--tasks", "bounce", "--num-envs", "8", "--threads", "1", "--steps", "40", "--rounds", "1"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    row = next(line for line in done.stdout.splitlines() if line.startswith("bounce"))
+    resets, *parts, outside, share = (float(v.replace(",", "")) for v in row.split()[3:])
+    assert len(parts) == 6 and all(p >= 0 for p in parts) and parts[0] > 0  # physics first
+    assert 0.0 <= resets <= 1.0
+    assert abs(outside - sum(parts[1:])) <= 3  # rounding of the printed parts
+    assert 0.0 < share < 1.0

@@ -155,6 +155,17 @@ def test_non_finite_action_never_reaches_the_simulator(bad):
     env.close()
 
 
+def test_huge_finite_actions_whose_sum_overflows_are_accepted_and_clipped():
+    # the finite check sums the action first; a sum that overflows must fall back to the exact check
+    env = make_env("bounce", 2)
+    td = env.reset()
+    action = torch.full((2, 20), 3e38)
+    assert not bool(torch.isfinite(action.sum()))
+    env.step(td.set("action", action))
+    assert torch.allclose(torch.as_tensor(env.base_env._ctrl[:, 0]), env.base_env.target_high.expand(2, -1))
+    env.close()
+
+
 def test_out_of_range_actions_are_clipped_to_the_ends_of_the_joint_ranges():
     env = make_env("bounce", 1)
     td = hold_pose(env, 1)

@@ -6,7 +6,9 @@ from helpers import hold_pose
 
 from roto_trl import make_env
 from roto_trl.envs.baoding import TARGETS, complete_rotations, swap_targets
+from roto_trl.envs.batched_mujoco import PhysicsReading
 from roto_trl.envs.bounce import BALL_REST, count_bounces
+from roto_trl.envs.robot_env import sensor_force, sensor_touched
 
 
 def run_bounce_detector(contacts: list[int]) -> tuple[list[bool], list[int]]:
@@ -17,6 +19,23 @@ def run_bounce_detector(contacts: list[int]) -> tuple[list[bool], list[int]]:
         bounces.append(bool(bounced))
         frees.append(int(free))
     return bounces, frees
+
+
+def test_sensor_force_is_the_largest_magnitude_over_substeps_worked_by_hand():
+    # 2 worlds, 2 substeps, 2 sensors of 3 components each
+    data = torch.zeros(2, 2, 6, dtype=torch.float64)
+    data[0, 0, :3] = torch.tensor([3.0, 4.0, 0.0])  # 5 N
+    data[0, 1, :3] = torch.tensor([0.0, 0.0, 1.0])  # 1 N
+    data[1, 1, :3] = torch.tensor([1.0, 2.0, 2.0])  # 3 N
+    data[1, 0, 3:] = torch.tensor([0.0, 0.0, -2.0])  # 2 N
+    data[1, 1, 3:] = torch.tensor([0.0, 1e-3, 0.0])  # 1 mN
+    empty = torch.zeros(2, 1)
+    reading = PhysicsReading(qpos=empty, qvel=empty, sensordata=data, mocap_pos=empty)
+    force = sensor_force(reading, slice(0, 6))
+    assert force.dtype == torch.float32
+    assert torch.equal(force, torch.tensor([[5.0, 0.0], [3.0, 2.0]]))
+    assert torch.equal(sensor_touched(reading, slice(0, 6)), torch.tensor([[True, False], [True, True]]))
+    assert torch.equal(sensor_force(reading, slice(3, 6)), torch.tensor([[0.0], [2.0]]))
 
 
 def test_contact_after_five_free_steps_is_a_bounce():

@@ -25,6 +25,8 @@ from roto_trl.envs.batched_mujoco import BatchedMujocoEnv, PhysicsReading
 from roto_trl.envs.rendering import SceneRenderer
 from roto_trl.envs.scene import CONTROL_DT, load_scene
 
+_ONES3 = torch.ones(3, 1, dtype=torch.float64)
+
 
 @dataclass
 class TaskConfig:
@@ -129,8 +131,19 @@ def sensor_force(reading: PhysicsReading, block: slice) -> torch.Tensor:
         ``[N, S]`` float32 newtons.
     """
     data = reading.sensordata[:, :, block]
-    force = data.reshape(*data.shape[:2], -1, 3)  # [N, substeps, S, 3]
-    return torch.linalg.vector_norm(force, dim=-1).amax(dim=1).float()
+    # The squared components summed by a matmul with ones: on the CPU a reduction over a last
+    # dimension of 3 (``vector_norm``, ``sum``) costs twice as much at a few hundred worlds.
+    squared = (data * data).reshape(*data.shape[:2], -1, 3) @ _ONES3  # [N, substeps, S, 1]
+    return squared.squeeze(-1).amax(dim=1).sqrt_().float()
+
+
+def sensor_touched(reading: PhysicsReading, block: slice) -> torch.Tensor:
+    """Whether each sensor in ``block`` read any force in the control step: ``[N, S]`` bool.
+
+    The same as ``sensor_force(reading, block) > 0`` without the magnitudes.
+    """
+    data = reading.sensordata[:, :, block]
+    return data.reshape(*data.shape[:2], -1, 3).ne(0.0).any(dim=-1).any(dim=1)
 
 
 class RobotTaskEnv(BatchedMujocoEnv):
