@@ -23,6 +23,7 @@ compare code changes by alternating runs of the two versions, not against an old
     python benchmarks/env_throughput.py      # the full table (several minutes)
     python benchmarks/env_throughput.py --tasks bounce --num-envs 1024 --threads 2
     python benchmarks/env_throughput.py --tasks bounce --num-envs 256 --threads 2 --breakdown
+    python benchmarks/env_throughput.py --tasks bounce --num-envs 256 --threads 2 --breakdown --no-physics
 """
 
 from __future__ import annotations
@@ -157,11 +158,25 @@ BREAKDOWN_PARTS = (
 )
 
 
-def breakdown(task: str, num_envs: int, threads: int, steps: int) -> tuple[dict[str, float], float]:
+def breakdown(
+    task: str, num_envs: int, threads: int, steps: int, physics: bool = True
+) -> tuple[dict[str, float], float]:
     """Microseconds per control step of each part of ``step_and_maybe_reset``, and the share of
-    steps on which some world reset, over ``steps`` steps with random actions after a warm-up."""
+    steps on which some world reset, over ``steps`` steps with random actions after a warm-up.
+
+    With ``physics=False`` the rollout call only copies each world's state to its outputs (the
+    worlds stay where they are, so only truncations reset): the Python parts then run back to
+    back, as in a micro-benchmark.
+    """
     env = make_env(task, num_envs, seed=0, num_threads=threads)
     base = env.base_env
+    if not physics:
+
+        def frozen(state, controls, state_out, sensor_out):
+            state_out[:] = state[:, None]
+            sensor_out[:] = 0.0
+
+        base._rollout = frozen
     timer = SectionTimer()
     timer.wrap(env, "step_and_maybe_reset", "TorchRL bookkeeping")
     timer.wrap(base, "_rollout", "physics")
@@ -204,7 +219,10 @@ def print_breakdowns(args: argparse.Namespace) -> None:
     for task in args.tasks:
         for n in args.num_envs:
             for threads in args.threads:
-                rounds = [breakdown(task, n, threads, args.steps) for _ in range(args.rounds)]
+                rounds = [
+                    breakdown(task, n, threads, args.steps, physics=not args.no_physics)
+                    for _ in range(args.rounds)
+                ]
                 parts = {p: float(np.median([r[0][p] for r in rounds])) for p in BREAKDOWN_PARTS}
                 reset_share = float(np.median([r[1] for r in rounds]))
                 outside = sum(v for p, v in parts.items() if p != "physics")
@@ -227,8 +245,15 @@ def main() -> None:
     parser.add_argument(
         "--breakdown", action="store_true", help="print where a step's time goes instead of the rates"
     )
+    parser.add_argument(
+        "--no-physics",
+        action="store_true",
+        help="with --breakdown: the rollout call does nothing, to time the Python parts back to back",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)
+    if args.no_physics and not args.breakdown:
+        parser.error("--no-physics only applies with --breakdown")
     if args.breakdown:
         print_breakdowns(args)
         return
