@@ -248,7 +248,7 @@ def main() -> None:
     parser.add_argument(
         "--no-physics",
         action="store_true",
-        help="with --breakdown: the rollout call does nothing, to time the Python parts back to back",
+        help="with --breakdown: the rollout only copies the state, to time the Python parts back to back",
     )
     args = parser.parse_args()
     torch.set_num_threads(1)

@@ -25,7 +25,7 @@ from roto_trl.envs.batched_mujoco import BatchedMujocoEnv, PhysicsReading
 from roto_trl.envs.rendering import SceneRenderer
 from roto_trl.envs.scene import CONTROL_DT, load_scene
 
-_ONES3 = torch.ones(3, 1, dtype=torch.float64)
+_ONES3 = torch.ones(3, 1, dtype=torch.float64)  # sums a force's three squared components (sensor_force)
 
 
 @dataclass
@@ -140,7 +140,8 @@ def sensor_force(reading: PhysicsReading, block: slice) -> torch.Tensor:
 def sensor_touched(reading: PhysicsReading, block: slice) -> torch.Tensor:
     """Whether each sensor in ``block`` read any force in the control step: ``[N, S]`` bool.
 
-    The same as ``sensor_force(reading, block) > 0`` without the magnitudes.
+    A sensor is touched when any component of its force is non-zero in any substep: what
+    ``sensor_force(reading, block) > 0`` says, without computing the magnitudes.
     """
     data = reading.sensordata[:, :, block]
     return data.reshape(*data.shape[:2], -1, 3).ne(0.0).any(dim=-1).any(dim=1)
