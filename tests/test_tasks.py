@@ -8,7 +8,7 @@ from roto_trl import make_env
 from roto_trl.envs.baoding import TARGETS, complete_rotations, swap_targets
 from roto_trl.envs.batched_mujoco import PhysicsReading
 from roto_trl.envs.bounce import BALL_REST, count_bounces
-from roto_trl.envs.robot_env import sensor_force, sensor_touched
+from roto_trl.envs.robot_env import sensor_force
 
 
 def run_bounce_detector(contacts: list[int]) -> tuple[list[bool], list[int]]:
@@ -34,7 +34,6 @@ def test_sensor_force_is_the_largest_magnitude_over_substeps_worked_by_hand():
     force = sensor_force(reading, slice(0, 6))
     assert force.dtype == torch.float32
     assert torch.equal(force, torch.tensor([[5.0, 0.0], [3.0, 2.0]]))
-    assert torch.equal(sensor_touched(reading, slice(0, 6)), torch.tensor([[True, False], [True, True]]))
     assert torch.equal(sensor_force(reading, slice(3, 6)), torch.tensor([[0.0], [2.0]]))
 
 

@@ -20,9 +20,7 @@ result independent of the thread that stepped it: same seed and actions give the
 from __future__ import annotations
 
 import abc
-import functools
 import math
-import operator
 import os
 from dataclasses import dataclass
 
@@ -351,7 +349,7 @@ class BatchedMujocoEnv(EnvBase, abc.ABC):
         obs = self._make_obs(reading)
         scaled = {k: (self.reward_scales[k] * terms[k]).to(torch.float32).reshape(-1, 1) for k in terms}
         obs["reward_terms"] = scaled
-        obs["reward"] = functools.reduce(operator.add, scaled.values())
+        obs["reward"] = sum(scaled.values())
         return self._output(
             {**obs, "done": terminated | truncated, "terminated": terminated, "truncated": truncated}
         )

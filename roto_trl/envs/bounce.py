@@ -17,7 +17,7 @@ import torch
 from torchrl.data import Unbounded
 
 from roto_trl.envs.batched_mujoco import PhysicsReading
-from roto_trl.envs.robot_env import sensor_block, sensor_touched
+from roto_trl.envs.robot_env import sensor_block, sensor_force
 from roto_trl.envs.shadow_hand import N_HAND_JOINTS, ShadowHandEnv, ShadowTaskConfig
 
 SCENE = "bounce.xml"
@@ -111,7 +111,7 @@ class BounceEnv(ShadowHandEnv):
         return reading.qpos[:, self._ball_q : self._ball_q + 3]
 
     def _compute_reward(self, reading: PhysicsReading) -> dict[str, torch.Tensor]:
-        in_contact = sensor_touched(reading, self._ball_sensor)[:, 0]
+        in_contact = sensor_force(reading, self._ball_sensor)[:, 0] > 0.0
         bounced, self._free_steps = count_bounces(in_contact, self._free_steps)
         self._bounces += bounced
         dist = torch.linalg.vector_norm(self._ball_pos(reading) - self._centre, dim=-1)

@@ -137,16 +137,6 @@ def sensor_force(reading: PhysicsReading, block: slice) -> torch.Tensor:
     return squared.squeeze(-1).amax(dim=1).sqrt_().float()
 
 
-def sensor_touched(reading: PhysicsReading, block: slice) -> torch.Tensor:
-    """Whether each sensor in ``block`` read any force in the control step: ``[N, S]`` bool.
-
-    A sensor is touched when any component of its force is non-zero in any substep: what
-    ``sensor_force(reading, block) > 0`` says, without computing the magnitudes.
-    """
-    data = reading.sensordata[:, :, block]
-    return data.reshape(*data.shape[:2], -1, 3).ne(0.0).any(dim=-1).any(dim=1)
-
-
 class RobotTaskEnv(BatchedMujocoEnv):
     """Base of the tasks: action mapping, joint and contact observations, sensor bookkeeping.
 
