@@ -32,8 +32,9 @@ from __future__ import annotations
 
 import os
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: see roto_trl/__init__.py
+import roto_trl  # noqa: F401  first, before torch loads: sets how its OpenMP threads wait (roto_trl/__init__.py)
 
+# isort: split
 import argparse
 import contextlib
 import importlib.util
@@ -167,7 +168,9 @@ def main() -> None:
     logging.getLogger("torchrl").setLevel(logging.WARNING)
     print(
         f"torch {torch.__version__}, {torch.get_num_threads()} torch threads, "
-        f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}, {args.iterations} timed iterations, "
+        f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}, "
+        f"GOMP_SPINCOUNT={os.environ.get('GOMP_SPINCOUNT')}, "
+        f"{args.iterations} timed iterations, "
         f"profile {args.profile or 'none (the exps as the paper has them)'}"
         + (f", overrides {' '.join(args.set)}" if args.set else "")
         + "; frames/s"

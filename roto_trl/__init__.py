@@ -3,16 +3,25 @@
 ``import roto_trl`` registers the Gymnasium ids and nothing else; ``make_env`` and ``TASKS`` load
 the simulator on first use, so a program may still set ``MUJOCO_GL`` after importing the package.
 
-It also sets ``OMP_WAIT_POLICY=PASSIVE`` (unless set) for programs that import it before torch:
-torch's OpenMP threads then sleep between operations instead of spinning, and so leave the cores
-to MuJoCo's physics threads. With spinning threads (the default) an env step with 2 torch threads
-took twice as long as with 1 on 2 cores, and a PPO minibatch update several times as long on a
-busy machine (``benchmarks/train_throughput.py``). It must be set before torch loads OpenMP.
+It also sets how torch's OpenMP threads wait between operations, for programs that import it
+before torch (each only where the variable is unset; OpenMP reads them when torch loads it):
+
+- ``OMP_WAIT_POLICY=PASSIVE``: threads sleep instead of spinning for libgomp's default 300,000
+  spins (about 5.5 ms of a core on this VM after every operation), which left MuJoCo's physics
+  threads without cores: an env step with 2 torch threads took twice as long as with 1 on 2
+  cores, and a PPO minibatch update several times as long on a busy machine.
+- ``GOMP_SPINCOUNT=10000``: but to sleep at once costs a wake-up of every thread at every
+  operation, 0.1-0.4 ms on this VM (a 512 x 20 ``exp`` took 131 us against 7 us spinning, a PPO
+  minibatch update 50 ms against 27 ms). 10,000 spins (about 0.2 ms) bridge the gaps between the
+  operations of an update or a policy forward and are over long before a physics step ends.
+
+``benchmarks/train_throughput.py`` measures the effect on training (README, "Throughput").
 """
 
 import os
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+os.environ.setdefault("GOMP_SPINCOUNT", "10000")
 
 from roto_trl.envs.registration import register_envs
 

@@ -26,8 +26,9 @@ from collections.abc import Sequence
 from datetime import datetime
 from pathlib import Path
 
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads: see roto_trl/__init__.py
+import roto_trl  # noqa: F401  first, before torch loads: sets how its OpenMP threads wait (roto_trl/__init__.py)
 
+# isort: split
 import hydra
 import numpy as np
 import torch

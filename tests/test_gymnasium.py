@@ -1,5 +1,6 @@
 """The Gymnasium interface: registration, spaces, same-step autoreset, the env checker."""
 
+import os
 import subprocess
 import sys
 import warnings
@@ -13,14 +14,25 @@ import roto_trl  # noqa: F401  (registers the ids)
 from roto_trl.envs.gymnasium_env import RoToVectorEnv
 from roto_trl.envs.registration import ENV_IDS
 
+OPENMP_VARIABLES = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")
 
-def test_import_registers_the_ids_and_changes_nothing_else():
+
+def test_import_registers_the_ids_and_sets_only_openmp_defaults():
+    clean = {k: v for k, v in os.environ.items() if k not in OPENMP_VARIABLES}
     code = (
         "import os; env = dict(os.environ); import roto_trl, gymnasium; "
-        "assert dict(os.environ) == env, 'import changed os.environ'; "
+        "changed = {k: v for k, v in os.environ.items() if env.get(k) != v}; "
+        "assert changed == {'OMP_WAIT_POLICY': 'PASSIVE', 'GOMP_SPINCOUNT': '10000'}, changed; "
         "assert all(i in gymnasium.registry for i in ('RoTO/Find-v0', 'RoTO/Bounce-v0', 'RoTO/Baoding-v0'))"
     )
-    subprocess.run([sys.executable, "-c", code], check=True)
+    subprocess.run([sys.executable, "-c", code], check=True, env=clean)
+    # a user's own values win
+    code = f"import os, roto_trl; assert [os.environ[k] for k in {OPENMP_VARIABLES}] == ['ACTIVE', '7']"
+    subprocess.run(
+        [sys.executable, "-c", code],
+        check=True,
+        env={**clean, "OMP_WAIT_POLICY": "ACTIVE", "GOMP_SPINCOUNT": "7"},
+    )
 
 
 def test_make_vec_random_loop_autoresets_in_the_same_step():

@@ -35,6 +35,24 @@ def rows(path: Path) -> list[dict[str, str]]:
         return list(csv.DictReader(handle))
 
 
+def test_the_script_sets_openmp_waiting_before_torch_loads(tmp_path):
+    """``python roto_trl/train.py`` imports the package (which sets the OpenMP defaults) before
+    torch: OpenMP reads them once, when torch loads it."""
+    code = (
+        "import os, runpy, sys\n"
+        "seen = []\n"
+        "class Spy:\n"
+        "    def find_spec(self, name, path=None, target=None):\n"
+        "        if name == 'torch' and not seen:\n"
+        "            seen.append((os.environ.get('OMP_WAIT_POLICY'), os.environ.get('GOMP_SPINCOUNT')))\n"
+        "sys.meta_path.insert(0, Spy())\n"
+        f"runpy.run_path({TRAIN[1]!r}, run_name='not_main')\n"
+        "assert seen == [('PASSIVE', '10000')], seen\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+    subprocess.run([sys.executable, "-c", code], check=True, env=env, cwd=tmp_path)
+
+
 def test_every_experiment_has_its_config():
     assert {f"{exp}.yaml" for exp in EXPS} <= {p.name for p in (resource_dir("conf") / "exp").glob("*.yaml")}
 
