@@ -7,9 +7,11 @@ gradient clip) on ``gymnasium.make_vec("RoTO/<Task>-v0")`` and returns frames/s 
 ``iterations`` timed iterations after one warm-up. skrl runs our networks
 (``roto_trl.modules.networks``: encoder 1024-512-256 with LayerNorm + ELU, tanh-mean Gaussian
 policy head with state-independent log-std, value head); rsl_rl its own MLPs with our layer sizes
-and ELU but no LayerNorm (its ``MLPModel`` has none). Both give the critic separate layers, sized
-as ``agent.critic_encoder_sizes`` when set. Imported only when the peer is installed
-(``.[bench]``).
+and ELU but no LayerNorm (its ``MLPModel`` has none), and, as the peer ``rsl_rl_ln``, the same
+MLPs with a LayerNorm after every hidden layer as our encoder has (``LayerNormMLPModel``), so
+that a difference between ours and rsl_rl can be told from the network's. Both give the critic
+separate layers, sized as ``agent.critic_encoder_sizes`` when set. Imported only when the peer is
+installed (``.[bench]``).
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ import time
 import gymnasium
 import numpy as np
 import torch
+from torch import nn
 
 from roto_trl.envs.registration import ENV_IDS
 from roto_trl.modules.agent import checked_critic_sizes
@@ -131,13 +134,33 @@ def skrl_fps(cfg, iterations: int) -> float:
     return iterations * rollout * int(cfg.env.num_envs) / elapsed
 
 
-def rsl_rl_runner(cfg, log_dir: str | None = None):
+def layer_norm_mlp_model():
+    """rsl_rl's ``MLPModel`` with ``nn.LayerNorm`` between every hidden ``Linear`` and its
+    activation, as in our encoder (``roto_trl.modules.networks.mlp``); the output layer stays
+    plain. A class to give rsl_rl as ``class_name`` (built on demand: rsl_rl is optional)."""
+    from rsl_rl.models import MLPModel
+
+    class LayerNormMLPModel(MLPModel):
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, **kwargs)
+            linears = [m for m in self.mlp if isinstance(m, nn.Linear)]
+            layers = []
+            for module in self.mlp:
+                layers.append(module)
+                if isinstance(module, nn.Linear) and module is not linears[-1]:
+                    layers.append(nn.LayerNorm(module.out_features))
+            self.mlp = nn.Sequential(*layers)
+
+    return LayerNormMLPModel
+
+
+def rsl_rl_runner(cfg, log_dir: str | None = None, layer_norm: bool = False):
     """rsl_rl's ``OnPolicyRunner`` on our Gymnasium vector env, with the experiment's values.
 
-    Its MLPs have our layer sizes and ELU but no LayerNorm; actor and critic are separate
-    networks (rsl_rl's design). Returns the runner and its env, whose ``episodes`` list collects
-    ``(frames so far, metric value)`` for every training episode that ends (the task's first
-    metric: bounces, rotations, ...).
+    Its MLPs have our layer sizes and ELU, with no LayerNorm unless ``layer_norm``
+    (``layer_norm_mlp_model``); actor and critic are separate networks (rsl_rl's design). Returns
+    the runner and its env, whose ``episodes`` list collects ``(frames so far, metric value)`` for
+    every training episode that ends (the task's first metric: bounces, rotations, ...).
     """
     from rsl_rl.env import VecEnv
     from rsl_rl.runners import OnPolicyRunner
@@ -175,6 +198,7 @@ def rsl_rl_runner(cfg, log_dir: str | None = None):
             return self._obs, torch.as_tensor(reward).float(), dones, extras
 
     a = cfg.agent
+    model = layer_norm_mlp_model() if layer_norm else "MLPModel"
     train_cfg = {
         "num_steps_per_env": int(a.rollout_len),
         "save_interval": 10**9,
@@ -194,12 +218,12 @@ def rsl_rl_runner(cfg, log_dir: str | None = None):
             "normalize_advantage_per_mini_batch": True,
         },
         "actor": {
-            "class_name": "MLPModel",
+            "class_name": model,
             "hidden_dims": list(ENCODER_SIZES),
             "activation": "elu",
             "distribution_cfg": {"class_name": "GaussianDistribution"},
         },
-        "critic": {"class_name": "MLPModel", "hidden_dims": list(critic_sizes(cfg)), "activation": "elu"},
+        "critic": {"class_name": model, "hidden_dims": list(critic_sizes(cfg)), "activation": "elu"},
     }
     env = GymnasiumVecEnv(_vec_env(cfg))
     return OnPolicyRunner(env, train_cfg, log_dir=log_dir, device="cpu"), env
@@ -252,9 +276,9 @@ def rsl_rl_evaluate(cfg, runner, episodes: int, seed: int, action: str) -> dict[
     return base.physical_metrics(final)
 
 
-def rsl_rl_fps(cfg, iterations: int) -> float:
+def rsl_rl_fps(cfg, iterations: int, layer_norm: bool = False) -> float:
     """Frames/s of rsl_rl's PPO over ``iterations`` timed iterations after one warm-up."""
-    runner, env = rsl_rl_runner(cfg)
+    runner, env = rsl_rl_runner(cfg, layer_norm=layer_norm)
     runner.learn(1)  # warm-up
     start = time.perf_counter()
     runner.learn(iterations)
@@ -263,4 +287,9 @@ def rsl_rl_fps(cfg, iterations: int) -> float:
     return iterations * int(cfg.agent.rollout_len) * env.num_envs / elapsed
 
 
-PEER_RUNNERS = {"skrl": skrl_fps, "rsl_rl": rsl_rl_fps}
+PEER_RUNNERS = {
+    "skrl": skrl_fps,
+    "rsl_rl": rsl_rl_fps,
+    "rsl_rl_ln": lambda cfg, iterations: rsl_rl_fps(cfg, iterations, layer_norm=True),
+}
+PEER_PACKAGES = {"skrl": "skrl", "rsl_rl": "rsl_rl", "rsl_rl_ln": "rsl_rl"}  # what each needs installed

@@ -7,10 +7,11 @@ For each experiment and world count it measures, in one process:
   update   the bare update: ``epochs x minibatches`` steps of forward + backward + optimiser of
            the same agent and losses (``ClipPPOLoss``, the SSL loss) on one minibatch of the
            real rollout drawn once, so no sampling, advantages or logging;
-  skrl, rsl_rl  their PPO (same 1024-512-256 ELU network with LayerNorm, R, mb, le, lr, clip
-           values) on our Gymnasium interface, when installed (``pip install -e .[bench]``);
-           they have no self-supervised objective, so for an SSL experiment (``bounce_fd``) they
-           run its PPO values without it and ours / peer understates ours.
+  skrl, rsl_rl  their PPO (same 1024-512-256 ELU network, R, mb, le, lr, clip values; rsl_rl's
+           MLP without LayerNorm, ``rsl_rl_ln`` the same with our LayerNorms) on our Gymnasium
+           interface, when installed (``pip install -e .[bench]``); they have no
+           self-supervised objective, so for an SSL experiment (``bounce_fd``) they run its PPO
+           values without it and ours / peer understates ours.
 It prints frames/s, each phase's share of our iteration, ours / serial limit where the serial
 limit is 1 / (1/sim + 1/update) (collection and update run one after the other on the same
 cores), and ours / best peer. Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
@@ -59,7 +60,7 @@ from roto_trl.trainers.builders import (
 from roto_trl.trainers.ppo import minibatch_step, ppo_update, store_rollout
 from roto_trl.utils.resources import resource_dir
 
-PEERS = ("skrl", "rsl_rl")
+PEERS = ("skrl", "rsl_rl", "rsl_rl_ln")
 
 
 def sim_only(env, steps: int) -> float:
@@ -139,9 +140,10 @@ def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
 
 def peer_fps(peer: str, cfg, iterations: int) -> float | None:
     """frames/s of ``peer``'s PPO on our Gymnasium interface, or None when it is not installed."""
-    if importlib.util.find_spec(peer) is None:
+    from peers import PEER_PACKAGES, PEER_RUNNERS  # benchmarks/peers.py: imports skrl and rsl_rl on use
+
+    if importlib.util.find_spec(PEER_PACKAGES[peer]) is None:
         return None
-    from peers import PEER_RUNNERS  # benchmarks/peers.py: imports skrl and rsl_rl
 
     with contextlib.redirect_stdout(io.StringIO()):  # their model summaries and per-iteration logs
         return PEER_RUNNERS[peer](cfg, iterations)
@@ -177,7 +179,7 @@ def main() -> None:
     )
     header = (
         f"{'exp':<11} {'N':>5} {'ours':>7} {'sim':>7} {'update':>7} {'limit':>7} {'ours/lim':>8} "
-        f"{'collect':>7} {'adv':>5} {'upd':>5} {'skrl':>7} {'rsl_rl':>7} {'ours/peer':>9}"
+        f"{'collect':>7} {'adv':>5} {'upd':>5} {'skrl':>7} {'rsl_rl':>7} {'rsl_rl_ln':>9} {'ours/peer':>9}"
         + ("  other adam" if args.fused else "")
     )
     print(header)
@@ -200,11 +202,12 @@ def main() -> None:
                 total = r["collect"] + r["advantages"] + r["update"]
                 peers = {p: None if args.no_peers else peer_fps(p, cfg, args.iterations) for p in PEERS}
                 best = max((v for v in peers.values() if v), default=None)
-                cell = {p: f"{v:>7,.0f}" if v else f"{'-':>7}" for p, v in peers.items()}
+                width = {p: max(7, len(p)) for p in PEERS}  # the header's column widths
+                cell = {p: f"{v:>{width[p]},.0f}" if v else f"{'-':>{width[p]}}" for p, v in peers.items()}
                 line = (
                     f"{exp:<11} {n:>5} {r['fps']:>7,.0f} {sim:>7,.0f} {update:>7,.0f} {limit:>7,.0f} "
                     f"{r['fps'] / limit:>8.2f} {r['collect'] / total:>7.0%} {r['advantages'] / total:>5.0%} "
-                    f"{r['update'] / total:>5.0%} {cell['skrl']} {cell['rsl_rl']} "
+                    f"{r['update'] / total:>5.0%} {cell['skrl']} {cell['rsl_rl']} {cell['rsl_rl_ln']} "
                     + (f"{r['fps'] / best:>9.2f}" if best else f"{'-':>9}")
                 )
                 if args.fused:

@@ -73,3 +73,28 @@ def test_env_breakdown_accounts_for_the_whole_step(physics):
         assert parts[0] > 0 and 0.0 <= resets <= 1.0 and 0.0 < share < 1.0
     else:  # frozen worlds: nothing falls, nothing resets, the Python parts are all there is
         assert resets == 0.0 and parts[2] == parts[4] == 0.0 and share < 0.05
+
+
+def test_the_layer_norm_peer_runs_rsl_rl_with_our_encoder_layer_norms():
+    """``rsl_rl_ln`` (``benchmarks/peers.py``): rsl_rl's actor and critic MLPs with a LayerNorm
+    after every hidden layer, as our encoder has; needs the optional ``.[bench]`` extra."""
+    pytest.importorskip("rsl_rl")
+    import torch
+    from helpers import compose_cfg
+
+    sys.path.insert(0, str(BENCHMARKS))
+    from peers import rsl_rl_runner
+
+    cfg = compose_cfg(["+exp=bounce_ppo", "+profile=cpu", "env.num_envs=4", "agent.rollout_len=4"])
+    for layer_norm, counts in ((False, [0, 0]), (True, [3, 2])):  # actor 1024-512-256, critic 256-128
+        runner, env = rsl_rl_runner(cfg, layer_norm=layer_norm)
+        actor, critic = runner.alg.actor, runner.alg.critic
+        norms = [
+            [m.normalized_shape[0] for m in net.mlp if isinstance(m, torch.nn.LayerNorm)]
+            for net in (actor, critic)
+        ]
+        assert [len(n) for n in norms] == counts
+        if layer_norm:
+            assert norms == [[1024, 512, 256], [256, 128]]
+        runner.learn(1)  # one rollout and update run through the changed networks
+        env.envs.close()
