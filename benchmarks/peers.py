@@ -16,6 +16,7 @@ installed (``.[bench]``).
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 
@@ -290,6 +291,6 @@ def rsl_rl_fps(cfg, iterations: int, layer_norm: bool = False) -> float:
 PEER_RUNNERS = {
     "skrl": skrl_fps,
     "rsl_rl": rsl_rl_fps,
-    "rsl_rl_ln": lambda cfg, iterations: rsl_rl_fps(cfg, iterations, layer_norm=True),
+    "rsl_rl_ln": functools.partial(rsl_rl_fps, layer_norm=True),
 }
 PEER_PACKAGES = {"skrl": "skrl", "rsl_rl": "rsl_rl", "rsl_rl_ln": "rsl_rl"}  # what each needs installed

@@ -1,10 +1,11 @@
 """RoTO-TRL: the Robot Tactile Olympiad on MuJoCo and TorchRL.
 
-``import roto_trl`` registers the Gymnasium ids and nothing else; ``make_env`` and ``TASKS`` load
-the simulator on first use, so a program may still set ``MUJOCO_GL`` after importing the package.
+``import roto_trl`` registers the Gymnasium ids and sets OpenMP's defaults (below), nothing else;
+``make_env`` and ``TASKS`` load the simulator on first use, so a program may still set
+``MUJOCO_GL`` after importing the package.
 
-It also sets how torch's OpenMP threads wait between operations, for programs that import it
-before torch (each only where the variable is unset; OpenMP reads them when torch loads it):
+The OpenMP defaults say how torch's OpenMP threads wait between operations, for programs that
+import it before torch (each only where the variable is unset; OpenMP reads them when torch loads it):
 
 - ``OMP_WAIT_POLICY=PASSIVE``: threads sleep instead of spinning for libgomp's default 300,000
   spins (about 5.5 ms of a core on this VM after every operation), which left MuJoCo's physics
@@ -12,7 +13,7 @@ before torch (each only where the variable is unset; OpenMP reads them when torc
   cores, and a PPO minibatch update several times as long on a busy machine.
 - ``GOMP_SPINCOUNT=10000``: but to sleep at once costs a wake-up of every thread at every
   operation, 0.1-0.4 ms on this VM (a 512 x 20 ``exp`` took 131 us against 7 us spinning, a PPO
-  minibatch update 50 ms against 27 ms). 10,000 spins (about 0.2 ms) bridge the gaps between the
+  minibatch update 50 ms against 27 ms). 10,000 spins (at most about 0.2 ms) bridge the gaps between the
   operations of an update or a policy forward and are over long before a physics step ends.
 
 ``benchmarks/train_throughput.py`` measures the effect on training (README, "Throughput").
