@@ -288,9 +288,8 @@ def rsl_rl_fps(cfg, iterations: int, layer_norm: bool = False) -> float:
     return iterations * int(cfg.agent.rollout_len) * env.num_envs / elapsed
 
 
-PEER_RUNNERS = {
-    "skrl": skrl_fps,
-    "rsl_rl": rsl_rl_fps,
-    "rsl_rl_ln": functools.partial(rsl_rl_fps, layer_norm=True),
+PEERS = {  # name -> (the package it needs installed, its frames/s runner)
+    "skrl": ("skrl", skrl_fps),
+    "rsl_rl": ("rsl_rl", rsl_rl_fps),
+    "rsl_rl_ln": ("rsl_rl", functools.partial(rsl_rl_fps, layer_norm=True)),
 }
-PEER_PACKAGES = {"skrl": "skrl", "rsl_rl": "rsl_rl", "rsl_rl_ln": "rsl_rl"}  # what each needs installed

@@ -45,6 +45,7 @@ import time
 
 import torch
 from hydra import compose, initialize_config_dir
+from peers import PEERS  # benchmarks/peers.py (skrl and rsl_rl are imported only when they run)
 
 from roto_trl.trainers.builders import (
     agent_for_env,
@@ -60,7 +61,7 @@ from roto_trl.trainers.builders import (
 from roto_trl.trainers.ppo import minibatch_step, ppo_update, store_rollout
 from roto_trl.utils.resources import resource_dir
 
-PEERS = ("skrl", "rsl_rl", "rsl_rl_ln")
+PEER_WIDTH = {p: max(7, len(p)) for p in PEERS}  # each peer's column width
 
 
 def sim_only(env, steps: int) -> float:
@@ -140,13 +141,11 @@ def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
 
 def peer_fps(peer: str, cfg, iterations: int) -> float | None:
     """frames/s of ``peer``'s PPO on our Gymnasium interface, or None when it is not installed."""
-    from peers import PEER_PACKAGES, PEER_RUNNERS  # benchmarks/peers.py: imports skrl and rsl_rl on use
-
-    if importlib.util.find_spec(PEER_PACKAGES[peer]) is None:
+    package, runner = PEERS[peer]
+    if importlib.util.find_spec(package) is None:
         return None
-
     with contextlib.redirect_stdout(io.StringIO()):  # their model summaries and per-iteration logs
-        return PEER_RUNNERS[peer](cfg, iterations)
+        return runner(cfg, iterations)
 
 
 def main() -> None:
@@ -179,7 +178,9 @@ def main() -> None:
     )
     header = (
         f"{'exp':<11} {'N':>5} {'ours':>7} {'sim':>7} {'update':>7} {'limit':>7} {'ours/lim':>8} "
-        f"{'collect':>7} {'adv':>5} {'upd':>5} {'skrl':>7} {'rsl_rl':>7} {'rsl_rl_ln':>9} {'ours/peer':>9}"
+        f"{'collect':>7} {'adv':>5} {'upd':>5} "
+        + " ".join(f"{p:>{PEER_WIDTH[p]}}" for p in PEERS)
+        + f" {'ours/peer':>9}"
         + ("  other adam" if args.fused else "")
     )
     print(header)
@@ -202,12 +203,13 @@ def main() -> None:
                 total = r["collect"] + r["advantages"] + r["update"]
                 peers = {p: None if args.no_peers else peer_fps(p, cfg, args.iterations) for p in PEERS}
                 best = max((v for v in peers.values() if v), default=None)
-                width = {p: max(7, len(p)) for p in PEERS}  # the header's column widths
-                cell = {p: f"{v:>{width[p]},.0f}" if v else f"{'-':>{width[p]}}" for p, v in peers.items()}
+                cells = " ".join(
+                    f"{v:>{PEER_WIDTH[p]},.0f}" if v else f"{'-':>{PEER_WIDTH[p]}}" for p, v in peers.items()
+                )
                 line = (
                     f"{exp:<11} {n:>5} {r['fps']:>7,.0f} {sim:>7,.0f} {update:>7,.0f} {limit:>7,.0f} "
                     f"{r['fps'] / limit:>8.2f} {r['collect'] / total:>7.0%} {r['advantages'] / total:>5.0%} "
-                    f"{r['update'] / total:>5.0%} {cell['skrl']} {cell['rsl_rl']} {cell['rsl_rl_ln']} "
+                    f"{r['update'] / total:>5.0%} {cells} "
                     + (f"{r['fps'] / best:>9.2f}" if best else f"{'-':>9}")
                 )
                 if args.fused:

@@ -22,6 +22,10 @@ TINY = [
 ]
 
 
+# what ``import roto_trl`` sets for OpenMP where unset (roto_trl/__init__.py)
+OPENMP_DEFAULTS = {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": "10000"}
+
+
 def compose_cfg(overrides):
     """The training config of ``roto_trl/train.py`` with Hydra ``overrides``."""
     with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):

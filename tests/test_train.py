@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from helpers import TINY, compose_cfg
+from helpers import OPENMP_DEFAULTS, TINY, compose_cfg
 from omegaconf import OmegaConf
 
 from roto_trl.analysis.checkpoint_eval import evaluate_run
@@ -44,12 +44,12 @@ def test_the_script_sets_openmp_waiting_before_torch_loads(tmp_path):
         "class Spy:\n"
         "    def find_spec(self, name, path=None, target=None):\n"
         "        if name == 'torch' and not seen:\n"
-        "            seen.append((os.environ.get('OMP_WAIT_POLICY'), os.environ.get('GOMP_SPINCOUNT')))\n"
+        f"            seen.append(tuple(os.environ.get(k) for k in {list(OPENMP_DEFAULTS)}))\n"
         "sys.meta_path.insert(0, Spy())\n"
         f"runpy.run_path({TRAIN[1]!r}, run_name='not_main')\n"
-        "assert seen == [('PASSIVE', '10000')], seen\n"
+        f"assert seen == [{tuple(OPENMP_DEFAULTS.values())}], seen\n"
     )
-    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+    env = {k: v for k, v in os.environ.items() if k not in OPENMP_DEFAULTS}
     subprocess.run([sys.executable, "-c", code], check=True, env=env, cwd=tmp_path)
 
 
