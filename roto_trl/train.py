@@ -61,6 +61,7 @@ from roto_trl.trainers.builders import (
     make_policy_average,
     make_ppo_loss,
     make_rollout_buffer,
+    make_std_ceiling,
     make_train_env,
 )
 from roto_trl.trainers.checkpoint import BEST, LATEST, load_checkpoint, save_checkpoint
@@ -74,6 +75,7 @@ from roto_trl.trainers.progress import TrainingProgress
 from roto_trl.trainers.run_dir import finished_reason, resume_config, rewind
 from roto_trl.trainers.run_lock import RunLock
 from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due, evaluations_left
+from roto_trl.trainers.std_ceiling import checked_std_ceiling
 from roto_trl.trainers.threads import job_threads
 from roto_trl.utils.cli import is_number
 from roto_trl.utils.paths import writable_dir
@@ -111,6 +113,7 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"agent.clip_value must be > 0 or null (no value clipping), got {a.clip_value!r}")
     checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))  # older runs lack both: defaults
     checked_decay(a.get("policy_ema_decay"))
+    checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", 1_000_000))
     advantage_norm_scope(a.get("normalize_advantage"))
     policy_distribution_kwargs(  # runs from before the options: the defaults
         str(a.get("deterministic_action", DEFAULT_DETERMINISTIC_ACTION)),
@@ -291,6 +294,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     params = [p for group in optimizer.param_groups for p in group["params"]]
     lr_schedule = make_lr_schedule(cfg, optimizer)  # None: agent.lr throughout (optionally annealed)
     policy_average = make_policy_average(cfg, agent)  # None unless agent.policy_ema_decay > 0
+    std_ceiling = make_std_ceiling(cfg, agent, optimizer)  # None unless agent.std_ceiling is set
     aux = make_aux_update(cfg, agent, env)  # the self-supervised objective, or None
 
     frames, iteration, wall_before = 0, 0, 0.0
@@ -310,6 +314,8 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
         if policy_average is not None:
             policy_average.load_state_dict(resumed[POLICY_AVERAGE_KEY])
         print(f"resuming {run_dir} at {frames:,} frames (iteration {iteration})")
+    if std_ceiling is not None:  # the first rollout's (a resumed run's parameter already under it)
+        std_ceiling.set_frames(frames)
 
     # 3. the collector and the rollout buffer
     collector = make_collector(cfg, env, agent)
@@ -384,6 +390,8 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             )
             if policy_average is not None:
                 policy_average.update()
+            if std_ceiling is not None:  # the next rollout's ceiling
+                losses["std_ceiling"] = std_ceiling.set_frames(frames)
             update_s = time.perf_counter() - t0
 
             stats = rollout_stats(batch, ep_return, columns)

@@ -254,6 +254,17 @@ def test_policy_average_is_what_the_run_evaluates_and_saves(tmp_path):
     assert resumed.keys() == saved.keys() and any(not torch.equal(resumed[k], saved[k]) for k in saved)
 
 
+def test_the_std_ceiling_falls_with_the_frames_and_the_checkpoint_holds_the_capped_std(tmp_path):
+    run = tmp_path / "run"
+    ceiling = ["agent.std_ceiling=0.25", "agent.std_ceiling_frames=256"]
+    train(compose_cfg(["+exp=bounce_ppo", *TINY, *ceiling, "total_frames=256", f"run_dir={run}"]))
+    # 128 frames per iteration: after the first 0.5 (halfway, log-linear), after the second 0.25
+    logged = [float(r["std_ceiling"]) for r in rows(run / "train.csv")]
+    assert logged == pytest.approx([0.5, 0.25])
+    log_std = load_checkpoint(run)["agent"]["policy_head.log_std"]
+    assert float(log_std.max()) <= math.log(0.25) + 1e-6
+
+
 def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
     run = tmp_path / "run"
     train(compose_cfg(["+exp=find_ppo", *TINY, "total_frames=128", f"run_dir={run}"]))

@@ -1,6 +1,6 @@
 """The PPO update: entropy and log-std conventions, the paper's Eq. 2 with an SSL objective, the
-two optimisers, the auxiliary minibatches, the KL-adaptive learning rate, the mean's bound and the
-moving average of the policy's weights."""
+two optimisers, the auxiliary minibatches, the KL-adaptive learning rate, the mean's bound, the
+moving average of the policy's weights and the ceiling on the standard deviation."""
 
 import math
 
@@ -23,10 +23,12 @@ from roto_trl.trainers.builders import (
     make_mean_bound_loss,
     make_optimizer,
     make_ppo_loss,
+    make_std_ceiling,
 )
 from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3, remaining
 from roto_trl.trainers.policy_average import PolicyAverage, policy_parameters
 from roto_trl.trainers.ppo import minibatch_loss, saturation
+from roto_trl.trainers.std_ceiling import std_ceiling
 
 P, T, A = 6, 4, 3
 GAUSSIAN_ENTROPY_AT_UNIT_STD = 0.5 * math.log(2 * math.pi * math.e)  # 1.4189..., per dimension
@@ -463,3 +465,47 @@ def test_policy_average_by_hand_and_swapped_in_only_inside_the_block():
     for bad in (1.0, -0.1, "'0.9'"):
         with pytest.raises(ValueError, match="policy_ema_decay must be a number in"):
             check_config(compose_cfg(["+exp=bounce_ppo", f"agent.policy_ema_decay={bad}"]))
+
+
+# ---------------------------------------------------------------------------- the std ceiling
+
+
+def test_std_ceiling_by_hand():
+    # log-linear from 1 to 0.25 over 1 M frames: log 0.25 = -1.386, halfway -0.693 = log 0.5
+    assert std_ceiling(0, 1.0, 0.25, 1_000_000) == pytest.approx(1.0)
+    assert std_ceiling(500_000, 1.0, 0.25, 1_000_000) == pytest.approx(0.5)
+    assert std_ceiling(250_000, 1.0, 0.25, 1_000_000) == pytest.approx(0.25**0.25)  # 0.7071
+    assert std_ceiling(1_000_000, 1.0, 0.25, 1_000_000) == pytest.approx(0.25)
+    assert std_ceiling(3_000_000, 1.0, 0.25, 1_000_000) == pytest.approx(0.25)  # stays after
+    assert std_ceiling(100, 2.0, 0.5, 200) == pytest.approx(1.0)  # exp(init_log_std) may be any start
+
+
+def test_the_std_ceiling_holds_the_log_std_under_it_after_every_step_and_below_it_learns():
+    torch.manual_seed(0)
+    agent = Agent(("prop",), P, A)
+    cfg = compose_cfg(["+exp=bounce_ppo", "agent.std_ceiling=0.25", "agent.std_ceiling_frames=100"])
+    optimizer = make_optimizer(cfg, agent)
+    ceiling = make_std_ceiling(cfg, agent, optimizer)
+    log_std = agent.policy_head.log_std
+    assert ceiling.set_frames(0) == pytest.approx(1.0) and torch.all(log_std == 0.0)  # the start: no change
+    assert ceiling.set_frames(50) == pytest.approx(0.5)
+    assert torch.allclose(log_std, torch.full((A,), math.log(0.5)))  # projected at once
+    with torch.no_grad():
+        log_std[0] = -2.0  # under the ceiling: learns freely
+    for _ in range(3):  # gradients that push every log-std up
+        optimizer.zero_grad()
+        (-agent.policy_head.log_std.sum()).backward()
+        optimizer.step()
+    assert torch.allclose(log_std[1:], torch.full((A - 1,), math.log(0.5)))  # held at the ceiling
+    assert -2.0 < float(log_std[0]) < math.log(0.5)  # rose by three steps of lr
+    _, scale = agent.policy_head(torch.zeros(1, agent.encoder.latent_dim))
+    assert float(scale.max()) == pytest.approx(0.5)
+    assert make_std_ceiling(compose_cfg(["+exp=bounce_ppo"]), agent, optimizer) is None  # off by default
+    for key, bad, message in (
+        ("std_ceiling", 0, r"agent\.std_ceiling must be a standard deviation > 0 or null"),
+        ("std_ceiling", "'low'", r"agent\.std_ceiling must be a standard deviation > 0 or null"),
+        ("std_ceiling_frames", 0, r"agent\.std_ceiling_frames must be a positive integer"),
+        ("std_ceiling_frames", 1.5, r"agent\.std_ceiling_frames must be a positive integer"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            check_config(compose_cfg(["+exp=bounce_ppo", "agent.std_ceiling=0.3", f"agent.{key}={bad}"]))
