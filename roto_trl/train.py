@@ -75,7 +75,7 @@ from roto_trl.trainers.progress import TrainingProgress
 from roto_trl.trainers.run_dir import finished_reason, resume_config, rewind
 from roto_trl.trainers.run_lock import RunLock
 from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due, evaluations_left
-from roto_trl.trainers.std_ceiling import checked_std_ceiling
+from roto_trl.trainers.std_ceiling import DEFAULT_FRAMES, checked_std_ceiling
 from roto_trl.trainers.threads import job_threads
 from roto_trl.utils.cli import is_number
 from roto_trl.utils.paths import writable_dir
@@ -113,7 +113,7 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"agent.clip_value must be > 0 or null (no value clipping), got {a.clip_value!r}")
     checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))  # older runs lack both: defaults
     checked_decay(a.get("policy_ema_decay"))
-    checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", 1_000_000))
+    checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES))
     advantage_norm_scope(a.get("normalize_advantage"))
     policy_distribution_kwargs(  # runs from before the options: the defaults
         str(a.get("deterministic_action", DEFAULT_DETERMINISTIC_ACTION)),

@@ -256,7 +256,7 @@ def test_policy_average_is_what_the_run_evaluates_and_saves(tmp_path):
 
 def test_the_std_ceiling_falls_with_the_frames_and_the_checkpoint_holds_the_capped_std(tmp_path):
     run = tmp_path / "run"
-    ceiling = ["agent.std_ceiling=0.25", "agent.std_ceiling_frames=256"]
+    ceiling = ["agent.std_ceiling=0.25", "agent.std_ceiling_frames=[0,256]"]
     train(compose_cfg(["+exp=bounce_ppo", *TINY, *ceiling, "total_frames=256", f"run_dir={run}"]))
     # 128 frames per iteration: after the first 0.5 (halfway, log-linear), after the second 0.25
     logged = [float(r["std_ceiling"]) for r in rows(run / "train.csv")]

@@ -471,24 +471,26 @@ def test_policy_average_by_hand_and_swapped_in_only_inside_the_block():
 
 
 def test_std_ceiling_by_hand():
-    # log-linear from 1 to 0.25 over 1 M frames: log 0.25 = -1.386, halfway -0.693 = log 0.5
-    assert std_ceiling(0, 1.0, 0.25, 1_000_000) == pytest.approx(1.0)
-    assert std_ceiling(500_000, 1.0, 0.25, 1_000_000) == pytest.approx(0.5)
-    assert std_ceiling(250_000, 1.0, 0.25, 1_000_000) == pytest.approx(0.25**0.25)  # 0.7071
-    assert std_ceiling(1_000_000, 1.0, 0.25, 1_000_000) == pytest.approx(0.25)
-    assert std_ceiling(3_000_000, 1.0, 0.25, 1_000_000) == pytest.approx(0.25)  # stays after
-    assert std_ceiling(100, 2.0, 0.5, 200) == pytest.approx(1.0)  # exp(init_log_std) may be any start
+    # held at 1 up to 0.5 M, log-linear to 0.25 at 1.5 M: log 0.25 = -1.386, halfway -0.693 = log 0.5
+    assert std_ceiling(0, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(1.0)
+    assert std_ceiling(500_000, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(1.0)
+    assert std_ceiling(1_000_000, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(0.5)
+    assert std_ceiling(750_000, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(0.25**0.25)  # 0.7071
+    assert std_ceiling(1_500_000, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(0.25)
+    assert std_ceiling(3_000_000, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(0.25)  # stays after
+    assert std_ceiling(100, 2.0, 0.5, 0, 200) == pytest.approx(1.0)  # exp(init_log_std) may be any start
 
 
 def test_the_std_ceiling_holds_the_log_std_under_it_after_every_step_and_below_it_learns():
     torch.manual_seed(0)
     agent = Agent(("prop",), P, A)
-    cfg = compose_cfg(["+exp=bounce_ppo", "agent.std_ceiling=0.25", "agent.std_ceiling_frames=100"])
+    frames = ["agent.std_ceiling=0.25", "agent.std_ceiling_frames=[100,200]"]
+    cfg = compose_cfg(["+exp=bounce_ppo", *frames])
     optimizer = make_optimizer(cfg, agent)
     ceiling = make_std_ceiling(cfg, agent, optimizer)
     log_std = agent.policy_head.log_std
-    assert ceiling.set_frames(0) == pytest.approx(1.0) and torch.all(log_std == 0.0)  # the start: no change
-    assert ceiling.set_frames(50) == pytest.approx(0.5)
+    assert ceiling.set_frames(100) == pytest.approx(1.0) and torch.all(log_std == 0.0)  # not yet falling
+    assert ceiling.set_frames(150) == pytest.approx(0.5)
     assert torch.allclose(log_std, torch.full((A,), math.log(0.5)))  # projected at once
     with torch.no_grad():
         log_std[0] = -2.0  # under the ceiling: learns freely
@@ -504,8 +506,9 @@ def test_the_std_ceiling_holds_the_log_std_under_it_after_every_step_and_below_i
     for key, bad, message in (
         ("std_ceiling", 0, r"agent\.std_ceiling must be a standard deviation > 0 or null"),
         ("std_ceiling", "'low'", r"agent\.std_ceiling must be a standard deviation > 0 or null"),
-        ("std_ceiling_frames", 0, r"agent\.std_ceiling_frames must be a positive integer"),
-        ("std_ceiling_frames", 1.5, r"agent\.std_ceiling_frames must be a positive integer"),
+        ("std_ceiling_frames", 1000, r"agent\.std_ceiling_frames must be \[begin, end\] frames"),
+        ("std_ceiling_frames", "[200,100]", r"agent\.std_ceiling_frames must be \[begin, end\] frames"),
+        ("std_ceiling_frames", "[0,1.5]", r"agent\.std_ceiling_frames must be \[begin, end\] frames"),
     ):
         with pytest.raises(ValueError, match=message):
             check_config(compose_cfg(["+exp=bounce_ppo", "agent.std_ceiling=0.3", f"agent.{key}={bad}"]))

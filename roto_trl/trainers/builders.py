@@ -30,7 +30,7 @@ from roto_trl.objectives import (
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.lr_schedule import KLAdaptiveLR, LinearDecayLR
 from roto_trl.trainers.policy_average import PolicyAverage, checked_decay
-from roto_trl.trainers.std_ceiling import StdCeiling, checked_std_ceiling
+from roto_trl.trainers.std_ceiling import DEFAULT_FRAMES, StdCeiling, checked_std_ceiling
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
 
@@ -161,11 +161,13 @@ def make_std_ceiling(cfg, agent: Agent, optimizer: torch.optim.Optimizer) -> Std
     projected after every step of ``optimizer``, or None (the default, null: no ceiling but the
     log-std clamp)."""
     a = _cfg(cfg).agent
-    final, over = checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", 1_000_000))
+    final, (begin, end) = checked_std_ceiling(
+        a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES)
+    )
     if final is None:  # older runs lack the keys: off
         return None
     start = float(torch.tensor(float(a.get("init_log_std", 0.0))).exp())
-    return StdCeiling(agent.policy_head.log_std, start, final, over).attach(optimizer)
+    return StdCeiling(agent.policy_head.log_std, start, final, begin, end).attach(optimizer)
 
 
 ADVANTAGE_NORM_SCOPES = ("minibatch", "batch", "none")

@@ -5,9 +5,11 @@ holds the rate at 2-4e-5 and nothing pulls the log-std down), so the sampled pol
 optimises is mostly its noise and plateaus at 6-7 bounces per 10 s, while the noise-free
 controller read out of it drifts and falls back from its peak (README, "Results on a CPU").
 A ceiling that falls over training makes the sampled policy converge onto the controller, so
-that PPO's objective is the controller's return. The ceiling falls log-linearly (the log-std
-is the parameter) from the initial standard deviation to ``agent.std_ceiling`` over
-``agent.std_ceiling_frames`` frames, then stays there.
+that PPO's objective is the controller's return. The ceiling stays at the initial standard
+deviation up to the first of ``agent.std_ceiling_frames`` ``[begin, end]``, falls log-linearly
+(the log-std is the parameter) to ``agent.std_ceiling`` at ``end``, then stays there. Bounce
+needs the first frames' full noise: a ceiling falling from frame 0 (``[0, 1_000_000]`` to 0.3)
+found no bouncing by 0.5 M frames on 3 seeds (README, "Results on a CPU").
 
 How: projection. After every step of the PPO optimiser (a step post-hook) and whenever the
 frame count moves (``StdCeiling.set_frames``) the log-std parameter is clamped to the
@@ -18,26 +20,39 @@ so an evaluation of a checkpoint sees the standard deviation the run had at its 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 
 from roto_trl.utils.cli import is_number
 
+DEFAULT_FRAMES = (500_000, 1_500_000)  # conf/agent/ppo.yaml's; configs saved before the option lack it
 
-def checked_std_ceiling(final, frames) -> tuple[float | None, int]:
+
+def checked_std_ceiling(final, frames) -> tuple[float | None, tuple[int, int]]:
     """``(agent.std_ceiling, agent.std_ceiling_frames)`` checked: a positive final standard
-    deviation or None (off), and a positive frame count; a one-line error naming the fix."""
+    deviation or None (off), and frames ``[begin, end]`` with 0 <= begin < end; a one-line error
+    naming the fix."""
     if final is not None and not (is_number(final) and float(final) > 0):
         raise ValueError(f"agent.std_ceiling must be a standard deviation > 0 or null (off), got {final!r}")
-    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 1:
-        raise ValueError(f"agent.std_ceiling_frames must be a positive integer, got {frames!r}")
-    return (None if final is None else float(final)), frames
+    pair = list(frames) if isinstance(frames, Sequence) and not isinstance(frames, str) else None
+    if not (
+        pair is not None
+        and len(pair) == 2
+        and all(isinstance(f, int) and not isinstance(f, bool) for f in pair)
+        and 0 <= pair[0] < pair[1]
+    ):
+        raise ValueError(
+            f"agent.std_ceiling_frames must be [begin, end] frames with 0 <= begin < end, e.g. "
+            f"[500000,1500000], got {frames!r}"
+        )
+    return (None if final is None else float(final)), (pair[0], pair[1])
 
 
-def std_ceiling(frames: float, start: float, final: float, over: float) -> float:
-    """The ceiling after ``frames`` frames: ``start`` at 0, log-linear to ``final`` at ``over``
-    frames, ``final`` after. E.g. ``std_ceiling(500_000, 1.0, 0.25, 1_000_000)`` is 0.5."""
-    progress = min(max(frames / over, 0.0), 1.0)
+def std_ceiling(frames: float, start: float, final: float, begin: float, end: float) -> float:
+    """The ceiling after ``frames`` frames: ``start`` up to ``begin``, log-linear to ``final`` at
+    ``end``, ``final`` after. E.g. ``std_ceiling(1_000_000, 1.0, 0.25, 500_000, 1_500_000)`` is 0.5."""
+    progress = min(max((frames - begin) / (end - begin), 0.0), 1.0)
     return math.exp((1.0 - progress) * math.log(start) + progress * math.log(final))
 
 
@@ -46,19 +61,19 @@ class StdCeiling:
 
     Args:
         log_std: the policy head's log standard deviation parameter.
-        start: the ceiling at frame 0 (the initial standard deviation).
-        final: the ceiling from ``over`` frames on.
-        over: frames over which the ceiling falls.
+        start: the ceiling up to ``begin`` frames (the initial standard deviation).
+        final: the ceiling from ``end`` frames on.
+        begin, end: the frames between which the ceiling falls.
     """
 
-    def __init__(self, log_std: torch.nn.Parameter, start: float, final: float, over: int) -> None:
+    def __init__(self, log_std: torch.nn.Parameter, start: float, final: float, begin: int, end: int) -> None:
         self.log_std = log_std
-        self.start, self.final, self.over = float(start), float(final), int(over)
+        self.start, self.final, self.begin, self.end = float(start), float(final), int(begin), int(end)
         self.value = self.start
 
     def set_frames(self, frames: int) -> float:
         """Move the ceiling to ``frames`` and project the parameter under it; returns the ceiling."""
-        self.value = std_ceiling(frames, self.start, self.final, self.over)
+        self.value = std_ceiling(frames, self.start, self.final, self.begin, self.end)
         self.project()
         return self.value
 
