@@ -47,6 +47,8 @@ from roto_trl.modules.distributions import (
 )
 from roto_trl.objectives.mean_bound import checked_mean_bound
 from roto_trl.trainers.builders import (
+    ADAM_BETAS,
+    adam_betas,
     advantage_norm_scope,
     agent_for_env,
     compile_agent,
@@ -113,6 +115,7 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"agent.clip_value must be > 0 or null (no value clipping), got {a.clip_value!r}")
     checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))  # older runs lack both: defaults
     checked_decay(a.get("policy_ema_decay"))
+    adam_betas(a.get("adam_betas", ADAM_BETAS))
     checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES))
     advantage_norm_scope(a.get("normalize_advantage"))
     policy_distribution_kwargs(  # runs from before the options: the defaults

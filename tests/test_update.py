@@ -349,6 +349,18 @@ def test_the_log_std_can_keep_the_fixed_rate_while_the_kl_rule_moves_the_rest():
     assert len(make_optimizer(compose_cfg(["+exp=bounce_ppo"]), agent).param_groups) == 1
 
 
+def test_adam_betas_from_the_config_torchs_by_default():
+    agent = Agent(("prop",), P, A)
+    assert make_optimizer(compose_cfg(["+exp=bounce_ppo"]), agent).param_groups[0]["betas"] == (0.9, 0.999)
+    equal = make_optimizer(compose_cfg(["+exp=bounce_ppo", "agent.adam_betas=[0.99,0.99]"]), agent)
+    assert equal.param_groups[0]["betas"] == (0.99, 0.99)
+    for bad in ("[0.9]", "[0.9,1.0]", "0.9", "[a,b]"):
+        with pytest.raises(
+            ValueError, match=r"agent\.adam_betas must be \[beta1, beta2\] with each in \[0, 1\)"
+        ):
+            check_config(compose_cfg(["+exp=bounce_ppo", f"agent.adam_betas={bad}"]))
+
+
 def test_the_forward_model_learns_from_the_action_the_env_applied():
     from roto_trl.trainers.builders import agent_for_env, make_aux_update, make_collector, make_train_env
 

@@ -31,6 +31,7 @@ from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.lr_schedule import KLAdaptiveLR, LinearDecayLR
 from roto_trl.trainers.policy_average import PolicyAverage, checked_decay
 from roto_trl.trainers.std_ceiling import DEFAULT_FRAMES, StdCeiling, checked_std_ceiling
+from roto_trl.utils.cli import number_pair
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
 
@@ -227,6 +228,19 @@ def make_rollout_buffer(cfg) -> TensorDictReplayBuffer:
     )
 
 
+ADAM_BETAS = (0.9, 0.999)  # torch's (and skrl's, rsl_rl's) defaults
+
+
+def adam_betas(value) -> tuple[float, float]:
+    """``agent.adam_betas`` as Adam's ``(beta1, beta2)``, each in [0, 1), or a one-line error."""
+    pair = number_pair(value)
+    if pair is None or not all(0.0 <= float(b) < 1.0 for b in pair):
+        raise ValueError(
+            f"agent.adam_betas must be [beta1, beta2] with each in [0, 1), e.g. [0.9,0.999], got {value!r}"
+        )
+    return float(pair[0]), float(pair[1])
+
+
 def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     """The PPO optimiser: one Adam over encoder + policy + value (the SSL gradient reaches the
     encoder through the same backward, see ``roto_trl.trainers.auxiliary``).
@@ -239,15 +253,21 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     its own that keeps ``agent.lr`` when ``agent.lr_schedule=kl_adaptive`` moves the others' rate
     (``kl_adaptive: False`` in the group), so that the standard deviation can shrink at the
     paper's rate while the KL rule holds the networks' steps at a tenth of it.
+
+    ``agent.adam_betas`` (default torch's ``[0.9, 0.999]``) are Adam's moment decays; equal betas
+    (e.g. ``[0.99, 0.99]``) are Dohare et al.'s (2023, "Overcoming policy collapse in deep RL")
+    remedy for PPO's collapse in long runs: with beta2 > beta1 the second moment lags the first,
+    and a gradient that grows after a quiet stretch takes outsized steps.
     """
     a = _cfg(cfg).agent
     lr, fused = float(a.lr), bool(a.get("fused_adam", True))
+    betas = adam_betas(a.get("adam_betas", ADAM_BETAS))  # older runs lack the key: torch's
     if not bool(a.get("log_std_fixed_lr", False)):
-        return torch.optim.Adam(agent.parameters(), lr=lr, fused=fused)
+        return torch.optim.Adam(agent.parameters(), lr=lr, betas=betas, fused=fused)
     log_std = agent.policy_head.log_std
     networks = [p for p in agent.parameters() if p is not log_std]
     groups = [{"params": networks}, {"params": [log_std], "kl_adaptive": False}]
-    return torch.optim.Adam(groups, lr=lr, fused=fused)
+    return torch.optim.Adam(groups, lr=lr, betas=betas, fused=fused)
 
 
 LR_SCHEDULES = ("fixed", "kl_adaptive")

@@ -20,11 +20,10 @@ so an evaluation of a checkpoint sees the standard deviation the run had at its 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 
 import torch
 
-from roto_trl.utils.cli import is_number
+from roto_trl.utils.cli import is_number, number_pair
 
 DEFAULT_FRAMES = (500_000, 1_500_000)  # conf/agent/ppo.yaml's; configs saved before the option lack it
 
@@ -35,13 +34,8 @@ def checked_std_ceiling(final, frames) -> tuple[float | None, tuple[int, int]]:
     naming the fix."""
     if final is not None and not (is_number(final) and float(final) > 0):
         raise ValueError(f"agent.std_ceiling must be a standard deviation > 0 or null (off), got {final!r}")
-    pair = list(frames) if isinstance(frames, Sequence) and not isinstance(frames, str) else None
-    if not (
-        pair is not None
-        and len(pair) == 2
-        and all(isinstance(f, int) and not isinstance(f, bool) for f in pair)
-        and 0 <= pair[0] < pair[1]
-    ):
+    pair = number_pair(frames)
+    if pair is None or not (all(isinstance(f, int) for f in pair) and 0 <= pair[0] < pair[1]):
         raise ValueError(
             f"agent.std_ceiling_frames must be [begin, end] frames with 0 <= begin < end, e.g. "
             f"[500000,1500000], got {frames!r}"

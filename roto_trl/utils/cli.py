@@ -3,6 +3,8 @@ checks of config values they and ``train.py`` share."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError
 
@@ -35,6 +37,14 @@ def parse_key_values(prog: str, argv: list[str], defaults: dict, example: str) -
 def is_number(value) -> bool:
     """An int or float from a config (a YAML ``true`` is a bool, not a number)."""
     return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def number_pair(value) -> tuple[float, float] | None:
+    """A config's list of exactly two numbers as a tuple, anything else None (for the caller's
+    one-line error)."""
+    if isinstance(value, str) or not isinstance(value, Sequence) or len(value) != 2:
+        return None
+    return (value[0], value[1]) if all(is_number(v) for v in value) else None
 
 
 def check_int(prog: str, cfg: DictConfig, key: str, minimum: int, *, optional: bool = False) -> None:
