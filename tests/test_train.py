@@ -259,8 +259,9 @@ def test_the_std_ceiling_falls_with_the_frames_and_the_checkpoint_holds_the_capp
     ceiling = ["agent.std_ceiling=0.25", "agent.std_ceiling_frames=[0,256]"]
     train(compose_cfg(["+exp=bounce_ppo", *TINY, *ceiling, "total_frames=256", f"run_dir={run}"]))
     # 128 frames per iteration: after the first 0.5 (halfway, log-linear), after the second 0.25
-    logged = [float(r["std_ceiling"]) for r in rows(run / "train.csv")]
-    assert logged == pytest.approx([0.5, 0.25])
+    logged = rows(run / "train.csv")
+    assert [float(r["std_ceiling"]) for r in logged] == pytest.approx([0.5, 0.25])
+    assert all(1.0 < float(r["latent_rank"]) <= 256 for r in logged)  # every run logs the encoder's rank
     log_std = load_checkpoint(run)["agent"]["policy_head.log_std"]
     assert float(log_std.max()) <= math.log(0.25) + 1e-6
 

@@ -27,7 +27,7 @@ from roto_trl.trainers.builders import (
 )
 from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3, remaining
 from roto_trl.trainers.policy_average import PolicyAverage, policy_parameters
-from roto_trl.trainers.ppo import minibatch_loss, saturation
+from roto_trl.trainers.ppo import effective_rank, minibatch_loss, saturation
 from roto_trl.trainers.std_ceiling import std_ceiling
 
 P, T, A = 6, 4, 3
@@ -524,3 +524,14 @@ def test_the_std_ceiling_holds_the_log_std_under_it_after_every_step_and_below_i
     ):
         with pytest.raises(ValueError, match=message):
             check_config(compose_cfg(["+exp=bounce_ppo", "agent.std_ceiling=0.3", f"agent.{key}={bad}"]))
+
+
+def test_effective_rank_by_hand():
+    # rows +-e_i of R^4: the centred singular values are all equal, so the rank is 4
+    eye = torch.eye(4)
+    assert effective_rank(torch.cat([eye, -eye])) == pytest.approx(4.0, rel=1e-5)
+    # singular values 3 : 1: p = (0.75, 0.25), exp(-(0.75 ln 0.75 + 0.25 ln 0.25)) = 1.7548
+    two = torch.tensor([[3.0, 0.0], [-3.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+    assert effective_rank(two) == pytest.approx(1.7548, abs=1e-4)
+    line = torch.arange(6.0).unsqueeze(1) * torch.tensor([[1.0, 2.0, 3.0]])  # every state on one line
+    assert effective_rank(line) == pytest.approx(1.0, abs=1e-3)
