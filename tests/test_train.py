@@ -261,9 +261,18 @@ def test_the_std_ceiling_falls_with_the_frames_and_the_checkpoint_holds_the_capp
     # 128 frames per iteration: after the first 0.5 (halfway, log-linear), after the second 0.25
     logged = rows(run / "train.csv")
     assert [float(r["std_ceiling"]) for r in logged] == pytest.approx([0.5, 0.25])
-    assert all(1.0 < float(r["latent_rank"]) <= 256 for r in logged)  # every run logs the encoder's rank
     log_std = load_checkpoint(run)["agent"]["policy_head.log_std"]
     assert float(log_std.max()) <= math.log(0.25) + 1e-6
+
+
+def test_the_policy_encoders_latent_rank_is_logged_in_training_evaluations_and_evaluate(tmp_path):
+    run = tmp_path / "run"
+    train(compose_cfg(["+exp=find_ppo", *TINY, f"run_dir={run}"]))
+    trained, evaluated = rows(run / "train.csv"), rows(run / "eval.csv")
+    assert len(trained) == 2 and len(evaluated) == 2  # the untrained policy's and the final
+    assert all(1.0 < float(r["latent_rank"]) <= 256 for r in trained + evaluated)
+    result = json.loads(evaluate_run(run, "latest", out=tmp_path / "e.json").read_text())
+    assert result["latent_rank"] == pytest.approx(float(evaluated[-1]["latent_rank"]), rel=1e-5)
 
 
 def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):

@@ -81,8 +81,8 @@ def evaluate_checkpoint(
     ``weights``: ``average`` (the moving average of the policy's weights when the run kept one, else
     its weights) or ``trained`` (see ``trainers.checkpoint.agent_from_checkpoint``).
 
-    Returns the result (return mean/std, mean episode length, episode metric means, physical
-    metrics) and, with ``video``, the RGB frames of the first episode.
+    Returns the result (return mean/std, mean episode length, the encoder's latent rank, episode
+    metric means, physical metrics) and, with ``video``, the RGB frames of the first episode.
     """
     policy = resolve_policy(policy, state)
     run_cfg = OmegaConf.create(state["config"])
@@ -109,6 +109,7 @@ def evaluate_checkpoint(
         "return_mean": float(result.returns.mean()),
         "return_std": float(result.returns.std(correction=0)),
         "episode_steps_mean": float(result.lengths.double().mean()),
+        "latent_rank": result.latent_rank,
         "metrics": {name: float(v.mean()) for name, v in result.final.items()},
         "physical": physical,
     }

@@ -12,7 +12,8 @@ from tensordict import TensorDictBase
 from torchrl.envs import TransformedEnv
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-from roto_trl.modules.agent import Agent
+from roto_trl.modules.agent import LATENT_KEY, Agent
+from roto_trl.trainers.ppo import RANK_STATES, latent_rank
 
 
 @dataclass
@@ -25,12 +26,15 @@ class Episodes:
         final: ``name -> [E]`` each episode metric (``bounces``, ``find_time_3cm``, ...) at the
             episode's last step.
         frames: RGB frames ``[H, W, 3]`` of world 0's episode, when asked for.
+        latent_rank: the effective rank of the policy encoder's latent ``z`` on about
+            ``RANK_STATES`` of the states the episodes visited (``ppo.latent_rank``).
     """
 
     returns: torch.Tensor
     lengths: torch.Tensor
     final: dict[str, torch.Tensor]
     frames: list[np.ndarray]
+    latent_rank: float
 
 
 @torch.no_grad()
@@ -74,13 +78,17 @@ def run_episodes(
         else min(max_steps, env.base_env.max_episode_steps)
     )
     exploration = ExplorationType.RANDOM if stochastic else ExplorationType.DETERMINISTIC
+    stride = max(1, n * steps // RANK_STATES)  # the steps whose latents latent_rank reads
+    latents = []
     # the stochastic policy's samples come from ``seed`` and leave the caller's RNG where it was
     with torch.random.fork_rng(enabled=stochastic), set_exploration_type(exploration):
         if stochastic:
             torch.manual_seed(seed)
-        for _ in range(steps):
+        for step in range(steps):
             live = ~finished
             decision = agent.policy(td.select(*keys).clone())
+            if step % stride == 0:
+                latents.append(decision[LATENT_KEY][live])
             if on_step is not None:
                 on_step(td, decision, live)
             td.set("action", decision["action"])
@@ -98,18 +106,19 @@ def run_episodes(
                 break
             td = out
     metrics = {name: final[:, c].cpu() for c, (_, _, name) in enumerate(columns)}
-    return Episodes(returns.cpu(), lengths.cpu(), metrics, frames)
+    return Episodes(returns.cpu(), lengths.cpu(), metrics, frames, latent_rank(torch.cat(latents).cpu()))
 
 
 def evaluate(env: TransformedEnv, agent: Agent, seed: int) -> dict[str, float]:
     """:func:`run_episodes`, summarised: return mean and std, each episode metric's mean and the
     task's physical metrics (``physical_metrics``: Find's ``reached_<tol>``, ``bounces_per_10s``,
     ``rotations_per_10s``), so that ``eval.csv`` holds the results table's numbers at every
-    evaluation (``analyse.py table``)."""
+    evaluation (``analyse.py table``), and the encoder's ``latent_rank``."""
     episodes = run_episodes(env, agent, seed)
     result = {
         "return_mean": float(episodes.returns.mean()),
         "return_std": float(episodes.returns.std(correction=0)),
+        "latent_rank": episodes.latent_rank,
     }
     result.update({name: float(v.mean()) for name, v in episodes.final.items()})
     result.update(env.base_env.physical_metrics(episodes.final))

@@ -193,6 +193,13 @@ def effective_rank(z: torch.Tensor) -> float:
     return float(torch.special.entr(p).sum().exp())
 
 
+def latent_rank(z: torch.Tensor) -> float:
+    """:func:`effective_rank` of latents ``z`` ``[*B, d]`` on an evenly spaced subsample of at
+    most ``RANK_STATES`` of them (training's ``latent_rank``, and evaluation's)."""
+    z = z.reshape(-1, z.shape[-1])
+    return effective_rank(z[:: max(1, z.shape[0] // RANK_STATES)])
+
+
 def rollout_stats(batch: TensorDictBase, ep_return: torch.Tensor, columns) -> dict[str, float]:
     """Per-step reward terms, the return and metrics of episodes that ended in ``batch``, and the
     fraction of the policy mean's entries |loc| > 0.9 on the collected states (``mean_saturation``,
@@ -206,8 +213,7 @@ def rollout_stats(batch: TensorDictBase, ep_return: torch.Tensor, columns) -> di
     reward = nxt["reward"].squeeze(-1)  # [N, R]
     done = nxt["done"].squeeze(-1)
     stats = {"reward": float(reward.mean()), "mean_saturation": saturation(batch["loc"])}
-    z = batch[LATENT_KEY].reshape(-1, batch[LATENT_KEY].shape[-1])
-    stats["latent_rank"] = effective_rank(z[:: max(1, z.shape[0] // RANK_STATES)])
+    stats["latent_rank"] = latent_rank(batch[LATENT_KEY])
     for term, value in nxt["reward_terms"].items():
         stats[f"reward/{term}"] = float(value.mean())
     returns = []
