@@ -7,6 +7,8 @@ dict a checkpoint stores.
 
 from __future__ import annotations
 
+import math
+
 import torch
 from omegaconf import DictConfig, OmegaConf
 from torchrl.collectors import Collector
@@ -167,7 +169,7 @@ def make_std_ceiling(cfg, agent: Agent, optimizer: torch.optim.Optimizer) -> Std
     )
     if final is None:  # older runs lack the keys: off
         return None
-    start = float(torch.tensor(float(a.get("init_log_std", 0.0))).exp())
+    start = math.exp(float(a.get("init_log_std", 0.0)))
     return StdCeiling(agent.policy_head.log_std, start, final, begin, end).attach(optimizer)
 
 

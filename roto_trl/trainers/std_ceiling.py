@@ -3,13 +3,15 @@
 Why: on Bounce, plain PPO's standard deviation stays near 1 on actions in [-1, 1] (the KL rule
 holds the rate at 2-4e-5 and nothing pulls the log-std down), so the sampled policy that PPO
 optimises is mostly its noise and plateaus at 6-7 bounces per 10 s, while the noise-free
-controller read out of it drifts and falls back from its peak (README, "Results on a CPU").
-A ceiling that falls over training makes the sampled policy converge onto the controller, so
-that PPO's objective is the controller's return. The ceiling stays at the initial standard
-deviation up to the first of ``agent.std_ceiling_frames`` ``[begin, end]``, falls log-linearly
-(the log-std is the parameter) to ``agent.std_ceiling`` at ``end``, then stays there. Bounce
-needs the first frames' full noise: a ceiling falling from frame 0 (``[0, 1_000_000]`` to 0.3)
-found no bouncing by 0.5 M frames on 3 seeds (README, "Results on a CPU").
+controller read out of it falls back from its peak. A ceiling that falls over training makes
+the sampled policy converge onto the controller, so that PPO's objective is the controller's
+return. The ceiling stays at the initial standard deviation up to the first of
+``agent.std_ceiling_frames`` ``[begin, end]``, falls log-linearly (the log-std is the
+parameter) to ``agent.std_ceiling`` at ``end``, then stays there. What it did on Bounce (3 seeds
+each, README "Results on a CPU"): falling from frame 0 found no bouncing by 0.5 M frames;
+falling from 0.5 M to 0.3 at 1.5 M doubled the sampled policy's bounces, but the controller
+still fell back on 2 seeds of 3 (and the sampled policy with it on one), so it is off by
+default.
 
 How: projection. After every step of the PPO optimiser (a step post-hook) and whenever the
 frame count moves (``StdCeiling.set_frames``) the log-std parameter is clamped to the
