@@ -535,3 +535,4 @@ def test_effective_rank_by_hand():
     assert effective_rank(two) == pytest.approx(1.7548, abs=1e-4)
     line = torch.arange(6.0).unsqueeze(1) * torch.tensor([[1.0, 2.0, 3.0]])  # every state on one line
     assert effective_rank(line) == pytest.approx(1.0, abs=1e-3)
+    assert effective_rank(torch.ones(1, 8)) == 0.0 and effective_rank(torch.ones(5, 8)) == 0.0  # no variation

@@ -175,13 +175,14 @@ def saturation(loc: torch.Tensor) -> float:
     return float((loc.abs() > SATURATED).float().mean())
 
 
-RANK_STATES = 2048  # latent_rank's evenly spaced subsample of a rollout's states (about 10 ms)
+RANK_STATES = 2048  # latent_rank's evenly spaced subsample of a rollout's states (10-20 ms)
 
 
 def effective_rank(z: torch.Tensor) -> float:
     """Roy and Vetterli's (2007) effective rank of latents ``z`` ``[n, d]`` about their mean:
     exp of the entropy of the normalised singular values, from 1 (every state on one line) to d
-    (variation spread evenly over all d directions).
+    (variation spread evenly over all d directions); 0 when the latents do not vary at all (one
+    state, or a constant encoder), where the entropy is undefined.
 
     Why it is logged: on Bounce the policy encoder's rank fell between the best and the final
     checkpoints in 21 of 26 plain-PPO runs, which fall back, and held in the 3 runs with the FD
@@ -189,8 +190,10 @@ def effective_rank(z: torch.Tensor) -> float:
     """
     centred = (z - z.mean(0)).double()  # float64: the Gram matrix squares the singular values
     singular = torch.linalg.eigvalsh(centred.T @ centred).clamp(min=0).sqrt()
-    p = singular / singular.sum()
-    return float(torch.special.entr(p).sum().exp())
+    total = singular.sum()
+    if not total > 0:
+        return 0.0
+    return float(torch.special.entr(singular / total).sum().exp())
 
 
 def latent_rank(z: torch.Tensor) -> float:
