@@ -46,6 +46,7 @@ from roto_trl.modules.distributions import (
     policy_distribution_kwargs,
 )
 from roto_trl.objectives.mean_bound import checked_mean_bound
+from roto_trl.objectives.proximal_feature import checked_feature_coeff
 from roto_trl.trainers.builders import (
     ADAM_BETAS,
     adam_betas,
@@ -58,9 +59,9 @@ from roto_trl.trainers.builders import (
     make_collector,
     make_eval_env,
     make_lr_schedule,
-    make_mean_bound_loss,
     make_optimizer,
     make_policy_average,
+    make_policy_terms,
     make_ppo_loss,
     make_rollout_buffer,
     make_std_ceiling,
@@ -114,6 +115,7 @@ def check_config(cfg: DictConfig) -> None:
     if a.clip_value is not None and not (is_number(a.clip_value) and a.clip_value > 0):
         raise ValueError(f"agent.clip_value must be > 0 or null (no value clipping), got {a.clip_value!r}")
     checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))  # older runs lack both: defaults
+    checked_feature_coeff(a.get("proximal_feature_coeff"))
     checked_decay(a.get("policy_ema_decay"))
     adam_betas(a.get("adam_betas", ADAM_BETAS))
     checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES))
@@ -291,7 +293,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     agent = agent_for_env(cfg, env)
     compile_agent(cfg, agent)  # agent.compile=true only
     loss_fn = make_ppo_loss(cfg, agent)
-    mean_bound = make_mean_bound_loss(cfg, agent)  # None unless agent.mean_bound_coeff > 0
+    terms = make_policy_terms(cfg, agent)  # the mean bound, the proximal feature term: none by default
     advantage = make_advantage(cfg)
     optimizer = make_optimizer(cfg, agent)
     params = [p for group in optimizer.param_groups for p in group["params"]]
@@ -389,7 +391,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             if lr_schedule is not None:  # the anneal's ramp: the fraction of the budget trained before
                 lr_schedule.set_progress((frames - batch.numel()) / cfg.total_frames)
             losses, aux_rows = ppo_update(
-                cfg, buffer, agent, loss_fn, optimizer, params, aux, lr_schedule, mean_bound
+                cfg, buffer, agent, loss_fn, optimizer, params, aux, lr_schedule, terms
             )
             if policy_average is not None:
                 policy_average.update()

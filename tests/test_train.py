@@ -265,6 +265,16 @@ def test_the_std_ceiling_falls_with_the_frames_and_the_checkpoint_holds_the_capp
     assert float(log_std.max()) <= math.log(0.25) + 1e-6
 
 
+def test_the_proximal_feature_term_is_trained_and_logged(tmp_path):
+    run = tmp_path / "run"
+    train(compose_cfg(["+exp=bounce_ppo", *TINY, "agent.proximal_feature_coeff=5.0", f"run_dir={run}"]))
+    logged = rows(run / "train.csv")
+    drift = [float(r["feature_drift"]) for r in logged]
+    assert all(d > 0 for d in drift)  # later epochs see a moved encoder
+    # the means over minibatches: the logged loss is the weight times the logged drift
+    assert [float(r["loss_proximal_feature"]) for r in logged] == pytest.approx([5.0 * d for d in drift])
+
+
 def test_the_policy_encoders_latent_rank_is_logged_in_training_evaluations_and_evaluate(tmp_path):
     run = tmp_path / "run"
     train(compose_cfg(["+exp=find_ppo", *TINY, f"run_dir={run}"]))

@@ -1,6 +1,7 @@
 """The PPO update: entropy and log-std conventions, the paper's Eq. 2 with an SSL objective, the
 two optimisers, the auxiliary minibatches, the KL-adaptive learning rate, the mean's bound, the
-moving average of the policy's weights and the ceiling on the standard deviation."""
+moving average of the policy's weights, the ceiling on the standard deviation and the proximal
+feature term."""
 
 import math
 
@@ -12,8 +13,8 @@ from tensordict import TensorDict
 from roto_trl import make_env
 from roto_trl.data.memory import AuxMemory
 from roto_trl.modules.agent import Agent
-from roto_trl.objectives import PolicyMeanBoundLoss, TactileForwardDynamicsLoss
-from roto_trl.objectives.functional import excess_square
+from roto_trl.objectives import PolicyMeanBoundLoss, ProximalFeatureLoss, TactileForwardDynamicsLoss
+from roto_trl.objectives.functional import excess_square, feature_drift
 from roto_trl.train import check_config
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.builders import (
@@ -22,6 +23,7 @@ from roto_trl.trainers.builders import (
     make_lr_schedule,
     make_mean_bound_loss,
     make_optimizer,
+    make_policy_terms,
     make_ppo_loss,
     make_std_ceiling,
 )
@@ -433,7 +435,7 @@ def test_the_mean_bound_joins_the_minibatch_loss_only_with_a_weight():
     plain = minibatch_loss(agent, loss_fn, batch.clone())[0].detach()
     assert make_mean_bound_loss(cfg, agent) is None  # agent.mean_bound_coeff 0: no extra work
     weighted = make_mean_bound_loss(compose_cfg(["+exp=bounce_ppo", "agent.mean_bound_coeff=0.5"]), agent)
-    total, losses, _ = minibatch_loss(agent, loss_fn, batch.clone(), mean_bound=weighted)
+    total, losses, _ = minibatch_loss(agent, loss_fn, batch.clone(), terms=(weighted,))
     assert float(total.detach()) == pytest.approx(float(plain) + 0.5 / 3, rel=1e-5)
     assert float(losses["mean_saturation"]) == pytest.approx(1 / 3)
     # every run logs the saturation of the loc the policy wrote while acting: 2 of these 4 > 0.9
@@ -511,7 +513,7 @@ def test_the_std_ceiling_holds_the_log_std_under_it_after_every_step_and_below_i
         (-agent.policy_head.log_std.sum()).backward()
         optimizer.step()
     assert torch.allclose(log_std[1:], torch.full((A - 1,), math.log(0.5)))  # held at the ceiling
-    assert -2.0 < float(log_std[0]) < math.log(0.5)  # rose by three steps of lr
+    assert -2.0 < float(log_std[0].detach()) < math.log(0.5)  # rose by three steps of lr
     _, scale = agent.policy_head(torch.zeros(1, agent.encoder.latent_dim))
     assert float(scale.max()) == pytest.approx(0.5)
     assert make_std_ceiling(compose_cfg(["+exp=bounce_ppo"]), agent, optimizer) is None  # off by default
@@ -536,3 +538,65 @@ def test_effective_rank_by_hand():
     line = torch.arange(6.0).unsqueeze(1) * torch.tensor([[1.0, 2.0, 3.0]])  # every state on one line
     assert effective_rank(line) == pytest.approx(1.0, abs=1e-3)
     assert effective_rank(torch.ones(1, 8)) == 0.0 and effective_rank(torch.ones(5, 8)) == 0.0  # no variation
+
+
+# ---------------------------------------------------------------------------- the proximal feature term
+
+
+def test_feature_drift_by_hand():
+    # differences [1, -2, 0, 0.5]: squares [1, 4, 0, 0.25], mean 5.25 / 4
+    now, before = torch.tensor([[1.0, 0.0], [2.0, 0.5]]), torch.tensor([[0.0, 2.0], [2.0, 0.0]])
+    assert float(feature_drift(now, before)) == pytest.approx(1.3125)
+
+
+def test_proximal_feature_loss_by_hand_with_its_gradient_and_keys():
+    before = torch.tensor([[0.0, 2.0], [2.0, 0.0]])
+    now = torch.tensor([[1.0, 0.0], [2.0, 0.5]], requires_grad=True)
+    td = TensorDict({"z": now, "z_rollout": before}, [2])
+    out = ProximalFeatureLoss(coeff=2.0)(td)
+    assert float(out["loss_proximal_feature"].detach()) == pytest.approx(2.0 * 1.3125)
+    assert float(out["feature_drift"]) == pytest.approx(1.3125) and not out["feature_drift"].requires_grad
+    out["loss_proximal_feature"].backward()
+    # d/dz of 2 * sum (z - z_rollout)^2 / 4 = (z - z_rollout): pulls back toward the rollout's latent
+    assert now.grad.flatten().tolist() == pytest.approx([1.0, -2.0, 0.0, 0.5])
+    off = ProximalFeatureLoss(coeff=0.0)(td)
+    assert float(off["loss_proximal_feature"]) == 0.0 and not off["loss_proximal_feature"].requires_grad
+    assert float(off["feature_drift"]) == pytest.approx(1.3125)  # the diagnostic either way
+    renamed = ProximalFeatureLoss(coeff=1.0)
+    renamed.set_keys(latent="latent", rollout_latent="acting_latent")
+    moved = td.clone()
+    moved.rename_key_("z", "latent")
+    moved.rename_key_("z_rollout", "acting_latent")
+    assert float(renamed(moved)["feature_drift"]) == pytest.approx(1.3125)
+    with pytest.raises(KeyError, match=r"no 'z_rollout' entry; name the right one with loss\.set_keys"):
+        ProximalFeatureLoss(coeff=1.0)(td.exclude("z_rollout"))
+    with pytest.raises(ValueError, match="differ in shape"):
+        ProximalFeatureLoss(coeff=1.0)(TensorDict({"z": now, "z_rollout": before[:, :1]}, [2]))
+
+
+def test_the_proximal_feature_term_holds_the_encoder_to_the_rollouts_latent():
+    agent, loss_fn, _ = agent_and_ppo_loss()
+    minibatch = ppo_minibatch(agent)
+    with torch.no_grad():
+        agent.encode(minibatch)  # the latent the policy wrote while acting, as in a rollout
+    acting = minibatch["z"].clone()
+    cfg = compose_cfg(["+exp=bounce_ppo", "agent.proximal_feature_coeff=3.0"])
+    assert make_policy_terms(compose_cfg(["+exp=bounce_ppo"]), agent) == ()  # off by default: no extra work
+    (term,) = make_policy_terms(cfg, agent)
+    plain = minibatch_loss(agent, loss_fn, minibatch.clone())[0]
+    total, losses, _ = minibatch_loss(agent, loss_fn, minibatch.clone(), terms=(term,))
+    # the encoder has not moved since acting: no drift and no penalty
+    assert float(losses["feature_drift"]) == 0.0 and float(total) == pytest.approx(float(plain))
+    optimizer = torch.optim.SGD(agent.encoder.parameters(), lr=0.5)
+    plain.backward()
+    optimizer.step()  # the encoder moves: its latent drifts from the rollout's
+    batch = minibatch.clone()
+    plain = minibatch_loss(agent, loss_fn, minibatch.clone())[0].detach()
+    total, losses, _ = minibatch_loss(agent, loss_fn, batch, terms=(term,))
+    assert torch.equal(batch["z_rollout"], acting) and not torch.equal(batch["z"], acting)
+    drift = float(((batch["z"] - acting) ** 2).mean())
+    assert drift > 0 and float(losses["feature_drift"]) == pytest.approx(drift, rel=1e-5)
+    assert float(total.detach()) == pytest.approx(float(plain) + 3.0 * drift, rel=1e-5)
+    for bad in ("-1", "'strong'"):
+        with pytest.raises(ValueError, match=r"agent\.proximal_feature_coeff must be a number >= 0"):
+            check_config(compose_cfg(["+exp=bounce_ppo", f"agent.proximal_feature_coeff={bad}"]))

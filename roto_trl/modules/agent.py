@@ -27,6 +27,7 @@ from roto_trl.modules.networks import ENCODER_SIZES, Encoder, PolicyHead, ValueH
 from roto_trl.modules.normalization import ValueNormalizer
 
 LATENT_KEY = "z"
+ROLLOUT_LATENT_KEY = "z_rollout"  # a minibatch's acting-time latent, kept while the update writes z
 
 
 def checked_critic_sizes(sizes, shared_encoder: bool) -> tuple[int, ...]:

@@ -14,6 +14,14 @@ from roto_trl.objectives.functional import auto_pos_weight
 DECODER_SIZES = (512, 512)
 
 
+def required_entry(td: TensorDictBase, key) -> torch.Tensor:
+    """``td[key]``, or a ``KeyError`` naming the key and how to point a loss elsewhere."""
+    value = td.get(key, None)
+    if value is None:
+        raise KeyError(f"the input has no {key!r} entry; name the right one with loss.set_keys(...)")
+    return value
+
+
 def decoder(latent_dim: int, out_dim: int, sizes: tuple[int, ...] = DECODER_SIZES) -> nn.Sequential:
     """z -> 512 -> 512 -> ``out_dim`` (ELU after the hidden layers, linear output)."""
     return nn.Sequential(mlp(latent_dim, sizes, layer_norm=False), nn.Linear(sizes[-1], out_dim))
@@ -72,13 +80,7 @@ class EncoderLoss(LossModule):
         with self.target_encoder_network_params.data.to_module(self.encoder_network):
             return self.encoder_network(td.select(*self.encoder_network.in_keys))[self.latent_key]
 
-    @staticmethod
-    def entry(td: TensorDictBase, key) -> torch.Tensor:
-        """``td[key]``, or a ``KeyError`` naming the key and how to point the loss elsewhere."""
-        value = td.get(key, None)
-        if value is None:
-            raise KeyError(f"the input has no {key!r} entry; name the right one with loss.set_keys(...)")
-        return value
+    entry = staticmethod(required_entry)
 
     def contact_weight(self, target: torch.Tensor) -> torch.Tensor | float:
         return auto_pos_weight(target) if self.pos_weight == "auto" else float(self.pos_weight)

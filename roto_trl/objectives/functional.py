@@ -80,3 +80,8 @@ def rollout_latents(forward_model, z0: torch.Tensor, actions: torch.Tensor) -> t
 def excess_square(x: torch.Tensor, bound: float) -> torch.Tensor:
     """Mean over all elements of ``relu(|x| - bound)^2``: 0 inside [-bound, bound], quadratic outside."""
     return F.relu(x.abs() - bound).square().mean()
+
+
+def feature_drift(features: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
+    """Mean over all elements of ``(features - reference)^2``; ``reference`` gets no gradient."""
+    return (features - reference.detach()).square().mean()

@@ -15,7 +15,7 @@ from torchrl.collectors import Collector
 from torchrl.data import LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.data.replay_buffers import SamplerWithoutReplacement
 from torchrl.envs import TransformedEnv
-from torchrl.objectives import ClipPPOLoss
+from torchrl.objectives import ClipPPOLoss, LossModule
 from torchrl.objectives.value import GAE
 
 from roto_trl.data.memory import AuxMemory
@@ -26,6 +26,7 @@ from roto_trl.objectives import (
     ForwardDynamicsLoss,
     FullReconstructionLoss,
     PolicyMeanBoundLoss,
+    ProximalFeatureLoss,
     TactileForwardDynamicsLoss,
     TactileReconstructionLoss,
 )
@@ -150,6 +151,20 @@ def make_mean_bound_loss(cfg, agent: Agent) -> PolicyMeanBoundLoss | None:
     a = _cfg(cfg).agent  # a run saved before these keys existed gets the defaults (None)
     loss = PolicyMeanBoundLoss(agent.policy_head, bound=a.get("mean_bound"), coeff=a.get("mean_bound_coeff"))
     return loss if loss.coeff > 0 else None
+
+
+def make_proximal_feature_loss(cfg) -> ProximalFeatureLoss | None:
+    """The penalty on how far an update moves the policy encoder's latent from the rollout's
+    (``agent.proximal_feature_coeff`` > 0), or None (the default, 0: no extra work)."""
+    loss = ProximalFeatureLoss(coeff=_cfg(cfg).agent.get("proximal_feature_coeff"))  # older runs: off
+    return loss if loss.coeff > 0 else None
+
+
+def make_policy_terms(cfg, agent: Agent) -> tuple[LossModule, ...]:
+    """The optional terms each PPO minibatch's loss adds (``ppo.minibatch_loss``): the mean
+    bound and the proximal feature penalty, those whose weight is > 0 (none by default)."""
+    terms = (make_mean_bound_loss(cfg, agent), make_proximal_feature_loss(cfg))
+    return tuple(term for term in terms if term is not None)
 
 
 def make_policy_average(cfg, agent: Agent) -> PolicyAverage | None:

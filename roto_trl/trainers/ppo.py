@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import statistics
+from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDictBase
+from torchrl.objectives import LossModule
 
-from roto_trl.modules.agent import LATENT_KEY, Agent
+from roto_trl.modules.agent import LATENT_KEY, ROLLOUT_LATENT_KEY, Agent
 from roto_trl.objectives.mean_bound import SATURATED
 from roto_trl.trainers.errors import NonFiniteError
 from roto_trl.trainers.lr_schedule import kl_k3
@@ -62,26 +64,31 @@ def minibatch_loss(
     minibatch: TensorDictBase,
     aux=None,
     aux_data: TensorDictBase | None = None,
-    mean_bound=None,
+    terms: Sequence[LossModule] = (),
 ) -> tuple[torch.Tensor, TensorDictBase, dict[str, float] | None]:
-    """The paper's Eq. 2 on one minibatch: L = L_PPO + c_aux L_aux (+ the optional mean bound).
+    """The paper's Eq. 2 on one minibatch: L = L_PPO + c_aux L_aux (+ the optional policy terms).
 
     Args:
-        minibatch: PPO's minibatch ``[M]`` from the rollout buffer.
+        minibatch: PPO's minibatch ``[M]`` from the rollout buffer; its acting-time latent ``z``
+            is kept as ``z_rollout`` before the encoder writes the new one.
         aux: the ``AuxiliaryUpdate``, or None; ``aux_data`` its minibatch (None: PPO alone).
-        mean_bound: a ``PolicyMeanBoundLoss`` or None; its term joins the total, its
-            diagnostics PPO's outputs.
+        terms: extra losses on the encoded minibatch (``PolicyMeanBoundLoss``,
+            ``ProximalFeatureLoss``; ``builders.make_policy_terms``); their ``loss_*`` entries
+            join the total, their diagnostics PPO's outputs.
 
     Returns:
         The total loss (scalar, one backward trains encoder, heads and auxiliary networks),
         PPO's loss outputs and the auxiliary numbers (None without an auxiliary minibatch).
     """
+    acting = minibatch.get(LATENT_KEY, None)  # the rollout's z (absent in hand-made minibatches)
+    if acting is not None:
+        minibatch.set(ROLLOUT_LATENT_KEY, acting)
     losses = loss_fn(agent.encode(minibatch))
     total = sum(losses[k] for k in PPO_TERMS)
-    if mean_bound is not None:
-        bound = mean_bound(minibatch)  # reads the z that agent.encode wrote
-        losses.update(bound)
-        total = total + bound["loss_mean_bound"]
+    for term in terms:  # each reads the z that agent.encode wrote
+        out = term(minibatch)
+        losses.update(out)
+        total = total + sum(v for k, v in out.items() if k.startswith("loss_"))
     aux_stats = None
     if aux is not None and aux_data is not None:
         aux_total, aux_stats = aux.objective(aux_data)
@@ -90,7 +97,7 @@ def minibatch_loss(
 
 
 def minibatch_step(
-    agent, loss_fn, optimizer, params, max_grad_norm, minibatch, aux=None, aux_data=None, mean_bound=None
+    agent, loss_fn, optimizer, params, max_grad_norm, minibatch, aux=None, aux_data=None, terms=()
 ):
     """One update on ``minibatch`` (and ``aux_data``, an auxiliary minibatch or None): the backward
     of ``minibatch_loss``, the gradient norm of ``params`` clipped to ``max_grad_norm``, the PPO
@@ -99,7 +106,7 @@ def minibatch_step(
     Returns ``ClipPPOLoss``'s output, the gradient norm before clipping and the auxiliary numbers
     (None without auxiliary data); a ``NonFiniteError`` for a non-finite loss or gradient.
     """
-    total, losses, aux_stats = minibatch_loss(agent, loss_fn, minibatch, aux, aux_data, mean_bound)
+    total, losses, aux_stats = minibatch_loss(agent, loss_fn, minibatch, aux, aux_data, terms)
     optimizer.zero_grad(set_to_none=True)
     if aux is not None:
         aux.zero_grad()
@@ -115,7 +122,7 @@ def minibatch_step(
 
 
 def ppo_update(
-    cfg, buffer, agent, loss_fn, optimizer, params, aux=None, lr_schedule=None, mean_bound=None
+    cfg, buffer, agent, loss_fn, optimizer, params, aux=None, lr_schedule=None, terms=()
 ) -> tuple[dict[str, float], list[dict[str, float]]]:
     """``epochs`` passes of ``minibatches`` disjoint minibatches.
 
@@ -123,7 +130,7 @@ def ppo_update(
     this epoch's auxiliary minibatches, ``aux.epoch``), then the PPO optimiser steps encoder +
     heads (gradient norm of ``params`` clipped) and the auxiliary optimiser the auxiliary
     networks. With ``lr_schedule`` the learning rate follows each epoch's mean ``kl_k3``;
-    ``mean_bound`` (a ``PolicyMeanBoundLoss``) adds its term and diagnostics to each minibatch's.
+    ``terms`` (``builders.make_policy_terms``) add their losses and diagnostics to each minibatch's.
 
     Returns:
         The mean diagnostics over minibatches (``ClipPPOLoss``'s, ``grad_norm``, ``kl_k3``:
@@ -147,7 +154,7 @@ def ppo_update(
                 buffer.sample(),
                 aux,
                 aux_data,
-                mean_bound,
+                terms,
             )
             diag = {k: float(v.detach().mean()) for k, v in losses.items()}
             diag["grad_norm"] = float(grad_norm)
