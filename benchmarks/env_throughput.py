@@ -33,6 +33,9 @@ import functools
 import time
 from collections import defaultdict
 
+import roto_trl  # noqa: F401  first, before torch loads: sets how its OpenMP threads wait (roto_trl/__init__.py)
+
+# isort: split
 import gymnasium
 import mujoco
 import numpy as np

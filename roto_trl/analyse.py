@@ -20,6 +20,9 @@ import csv
 import sys
 from pathlib import Path
 
+import roto_trl  # noqa: F401  first, before torch loads: sets how its OpenMP threads wait (roto_trl/__init__.py)
+
+# isort: split
 import matplotlib.pyplot as plt
 import numpy as np
 import torch

@@ -16,6 +16,9 @@ import time
 from datetime import datetime
 from pathlib import Path
 
+import roto_trl  # noqa: F401  first, before torch loads: sets how its OpenMP threads wait (roto_trl/__init__.py)
+
+# isort: split
 import torch
 
 from roto_trl import TASKS, make_env

@@ -22,6 +22,9 @@ import sys
 from datetime import datetime
 from pathlib import Path
 
+import roto_trl  # noqa: F401  first, before torch loads: sets how its OpenMP threads wait (roto_trl/__init__.py)
+
+# isort: split
 import torch
 from omegaconf import DictConfig, OmegaConf
 
