@@ -80,7 +80,5 @@ class EncoderLoss(LossModule):
         with self.target_encoder_network_params.data.to_module(self.encoder_network):
             return self.encoder_network(td.select(*self.encoder_network.in_keys))[self.latent_key]
 
-    entry = staticmethod(required_entry)
-
     def contact_weight(self, target: torch.Tensor) -> torch.Tensor | float:
         return auto_pos_weight(target) if self.pos_weight == "auto" else float(self.pos_weight)

@@ -18,7 +18,7 @@ from tensordict.utils import NestedKey
 from torch import nn
 
 from roto_trl.modules.networks import mlp
-from roto_trl.objectives.common import EncoderLoss, decoder
+from roto_trl.objectives.common import EncoderLoss, decoder, required_entry
 from roto_trl.objectives.functional import contact_bce, contact_confusion, latent_mse, rollout_latents
 
 FORWARD_SIZES = (512, 256)
@@ -69,7 +69,7 @@ class ForwardDynamicsLoss(EncoderLoss):
                 f"forward dynamics needs sequences [B, n >= 2], got batch {list(tensordict.shape)}"
             )
         z0 = self.encode(tensordict[:, 0])
-        actions = self.entry(tensordict, self.tensor_keys.action)[:, :-1]
+        actions = required_entry(tensordict, self.tensor_keys.action)[:, :-1]
         predicted = rollout_latents(self.forward_model, z0, actions)
         target = self.encode_target(tensordict[:, 1:])
         return predicted, target
@@ -129,7 +129,7 @@ class TactileForwardDynamicsLoss(ForwardDynamicsLoss):
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         predicted, target = self._predict(tensordict)
         projected = self.projector(predicted)
-        tactile = self.entry(tensordict, self.tensor_keys.tactile)[:, 1:].float()
+        tactile = required_entry(tensordict, self.tensor_keys.tactile)[:, 1:].float()
         logits = self.tactile_decoder(predicted)
         weight = self.contact_weight(tactile)
         mse, bce, out = [], [], {}

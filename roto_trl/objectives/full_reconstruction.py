@@ -8,7 +8,7 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 
-from roto_trl.objectives.common import EncoderLoss, decoder
+from roto_trl.objectives.common import EncoderLoss, decoder, required_entry
 from roto_trl.objectives.functional import contact_bce, contact_confusion, latent_mse
 
 
@@ -55,10 +55,10 @@ class FullReconstructionLoss(EncoderLoss):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         recon = self.observation_decoder(self.encode(tensordict))
-        prop = self.entry(tensordict, self.tensor_keys.prop)
+        prop = required_entry(tensordict, self.tensor_keys.prop)
         out = {"loss_prop": latent_mse(recon[..., : self.prop_dim], prop)}
         if self.tactile_dim:
-            target = self.entry(tensordict, self.tensor_keys.tactile).float()
+            target = required_entry(tensordict, self.tensor_keys.tactile).float()
             logits = recon[..., self.prop_dim :]
             weight = self.contact_weight(target)
             out["loss_tactile"] = contact_bce(logits, target, weight)

@@ -10,6 +10,7 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 from torchrl.objectives import LossModule
 
+from roto_trl.modules.agent import LATENT_KEY, ROLLOUT_LATENT_KEY
 from roto_trl.objectives.common import required_entry
 from roto_trl.objectives.functional import feature_drift
 from roto_trl.utils.cli import is_number
@@ -29,11 +30,13 @@ class ProximalFeatureLoss(LossModule):
 
     Why: on Bounce the policy encoder's effective rank falls between the best and the final
     checkpoint in most plain-PPO runs, which fall back, and holds with the FD objective, which
-    does not (README, "Results on a CPU"). Moalla et al. tie PPO's collapse to such a falling
-    rank and hold it by penalising how far an update moves the features (PFO), as PPO's clip
-    bounds how far it moves the action probabilities. They penalise the pre-activations of the
-    actor's layers; this term takes the latent the heads read, because the rollout already holds
-    it (written while acting): no extra forward pass of the old network.
+    does not. Moalla et al. tie PPO's collapse to such a falling rank and hold it by penalising
+    how far an update moves the features (PFO), as PPO's clip bounds how far it moves the action
+    probabilities. They penalise the pre-activations of the actor's layers; this term takes the
+    latent the heads read, because the rollout already holds it (written while acting): no extra
+    forward pass of the old network. What it did on Bounce (coeff 10, 3 seeds, README "Results on
+    a CPU"): the rank stayed at FD's level, and the controller fell back all the same, so it is
+    off by default.
 
     Input: a tensordict ``[B]`` with the new latent ``z`` ``[B, Z]`` (``Agent.encode`` writes it)
     and the acting-time latent ``z_rollout`` ``[B, Z]`` (``ppo.minibatch_loss`` keeps it).
@@ -54,8 +57,8 @@ class ProximalFeatureLoss(LossModule):
             rollout_latent: the latent written while acting. Defaults to ``"z_rollout"``.
         """
 
-        latent: NestedKey = "z"
-        rollout_latent: NestedKey = "z_rollout"
+        latent: NestedKey = LATENT_KEY
+        rollout_latent: NestedKey = ROLLOUT_LATENT_KEY
 
     default_keys = _AcceptedKeys
 
@@ -69,6 +72,7 @@ class ProximalFeatureLoss(LossModule):
         if z.shape != reference.shape:
             shapes = f"{tuple(z.shape)} against {tuple(reference.shape)}"
             raise ValueError(f"the latent and the rollout latent differ in shape: {shapes}")
-        drift = feature_drift(z, reference)
+        with torch.set_grad_enabled(torch.is_grad_enabled() and self.coeff > 0):
+            drift = feature_drift(z, reference)
         loss = self.coeff * drift if self.coeff > 0 else torch.zeros((), dtype=z.dtype, device=z.device)
         return TensorDict({"loss_proximal_feature": loss, "feature_drift": drift.detach()}, batch_size=[])

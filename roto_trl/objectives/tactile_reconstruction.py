@@ -9,7 +9,7 @@ from tensordict import TensorDict, TensorDictBase
 from tensordict.nn import TensorDictModule
 from tensordict.utils import NestedKey
 
-from roto_trl.objectives.common import EncoderLoss, decoder
+from roto_trl.objectives.common import EncoderLoss, decoder, required_entry
 from roto_trl.objectives.functional import contact_bce, contact_confusion
 
 
@@ -51,7 +51,7 @@ class TactileReconstructionLoss(EncoderLoss):
         return torch.sigmoid(self.tactile_decoder(self.encode(tensordict)))
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
-        target = self.entry(tensordict, self.tensor_keys.tactile).float()
+        target = required_entry(tensordict, self.tensor_keys.tactile).float()
         logits = self.tactile_decoder(self.encode(tensordict))
         weight = self.contact_weight(target)
         out = {"loss_tactile": contact_bce(logits, target, weight), "pos_weight": float(weight)}
