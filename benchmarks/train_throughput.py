@@ -49,6 +49,7 @@ from peers import PEERS  # benchmarks/peers.py (skrl and rsl_rl are imported onl
 
 from roto_trl.trainers.builders import (
     agent_for_env,
+    apply_rollout_floor,
     compile_agent,
     make_advantage,
     make_aux_update,
@@ -193,6 +194,7 @@ def main() -> None:
                 overrides += ["agent.compile=true"] if args.compile else []
                 overrides += args.set
                 cfg = compose("train", overrides=overrides)
+                apply_rollout_floor(cfg)  # as train.py: the profile's minimum rollout
                 sim_env = make_train_env(cfg)
                 sim = sim_only(sim_env, int(cfg.agent.rollout_len) * 2)
                 sim_env.close()

@@ -52,8 +52,10 @@ from roto_trl.trainers.builders import (
     adam_betas,
     advantage_norm_scope,
     agent_for_env,
+    apply_rollout_floor,
     compile_agent,
     eval_seed,
+    gae_horizon,
     make_advantage,
     make_aux_update,
     make_collector,
@@ -116,6 +118,7 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"agent.clip_value must be > 0 or null (no value clipping), got {a.clip_value!r}")
     checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))  # older runs lack both: defaults
     checked_feature_coeff(a.get("proximal_feature_coeff"))
+    gae_horizon(cfg)
     checked_decay(a.get("policy_ema_decay"))
     adam_betas(a.get("adam_betas", ADAM_BETAS))
     checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES))
@@ -257,6 +260,7 @@ def train(cfg: DictConfig, overrides: Sequence[str] = ()) -> Path:
     logs are first cut back to its checkpoint, and a finished one is left unchanged.
     """
     check_config(cfg)
+    apply_rollout_floor(cfg)  # the CPU profile's minimum steps per rollout
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # its storage notices are not progress
     cfg, run_dir, resumed, lock = prepare_run(cfg, overrides)
     try:
@@ -295,6 +299,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     loss_fn = make_ppo_loss(cfg, agent)
     terms = make_policy_terms(cfg, agent)  # the mean bound, the proximal feature term: none by default
     advantage = make_advantage(cfg)
+    horizon = gae_horizon(cfg)  # None: GAE over the whole rollout
     optimizer = make_optimizer(cfg, agent)
     params = [p for group in optimizer.param_groups for p in group["params"]]
     lr_schedule = make_lr_schedule(cfg, optimizer)  # None: agent.lr throughout (optionally annealed)
@@ -387,7 +392,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             frames += batch.numel()
 
             t0 = time.perf_counter()
-            store_rollout(batch, agent, advantage, buffer, aux)
+            store_rollout(batch, agent, advantage, buffer, aux, horizon)
             if lr_schedule is not None:  # the anneal's ramp: the fraction of the budget trained before
                 lr_schedule.set_progress((frames - batch.numel()) / cfg.total_frames)
             losses, aux_rows = ppo_update(

@@ -3,11 +3,13 @@ two optimisers, the auxiliary minibatches, the KL-adaptive learning rate, the me
 moving average of the policy's weights, the ceiling on the standard deviation and the proximal
 feature term."""
 
+import copy
 import math
 
 import pytest
 import torch
-from helpers import compose_cfg
+from helpers import TINY, compose_cfg
+from omegaconf import OmegaConf
 from tensordict import TensorDict
 
 from roto_trl import make_env
@@ -15,10 +17,12 @@ from roto_trl.data.memory import AuxMemory
 from roto_trl.modules.agent import Agent
 from roto_trl.objectives import PolicyMeanBoundLoss, ProximalFeatureLoss, TactileForwardDynamicsLoss
 from roto_trl.objectives.functional import excess_square, feature_drift
-from roto_trl.train import check_config
+from roto_trl.train import check_config, train
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.builders import (
     agent_for_env,
+    apply_rollout_floor,
+    gae_horizon,
     make_advantage,
     make_lr_schedule,
     make_mean_bound_loss,
@@ -27,9 +31,10 @@ from roto_trl.trainers.builders import (
     make_ppo_loss,
     make_std_ceiling,
 )
+from roto_trl.trainers.loggers import read_csv
 from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3, remaining
 from roto_trl.trainers.policy_average import PolicyAverage, policy_parameters
-from roto_trl.trainers.ppo import effective_rank, minibatch_loss, saturation
+from roto_trl.trainers.ppo import effective_rank, estimate_advantages, minibatch_loss, saturation
 from roto_trl.trainers.std_ceiling import std_ceiling
 
 P, T, A = 6, 4, 3
@@ -213,6 +218,26 @@ def test_the_cpu_profile_gives_any_experiment_the_recipe_and_keeps_its_values(ex
     assert cpu.ssl == paper.ssl
 
 
+def test_the_cpu_profile_lengthens_only_rollouts_under_32_steps(tmp_path, capsys):
+    for exp, paper, recipe in (("bounce_ppo", 16, 32), ("find_ppo", 32, 32), ("find_fd", 64, 64)):
+        cfg = compose_cfg([f"+exp={exp}", "+profile=cpu"])
+        apply_rollout_floor(cfg)
+        assert cfg.agent.rollout_len == recipe
+        cfg = compose_cfg([f"+exp={exp}"])
+        apply_rollout_floor(cfg)  # the paper's exps have no floor
+        assert cfg.agent.rollout_len == paper
+    assert "agent.rollout_len: 16 -> 32 (agent.min_rollout_len" in capsys.readouterr().out
+    kept = compose_cfg(["+exp=bounce_ppo", "+profile=cpu", "agent.min_rollout_len=null"])
+    apply_rollout_floor(kept)
+    assert kept.agent.rollout_len == 16
+    with pytest.raises(ValueError, match=r"agent\.min_rollout_len must be a positive integer or null"):
+        apply_rollout_floor(compose_cfg(["+exp=bounce_ppo", "agent.min_rollout_len=0"]))
+    run = tmp_path / "run"  # a run trains with, and saves, the lengthened rollout: 8 worlds x 24 steps
+    train(compose_cfg(["+exp=bounce_ppo", *TINY, "agent.min_rollout_len=24", f"run_dir={run}"]))
+    assert OmegaConf.load(run / "config.yaml").agent.rollout_len == 24
+    assert read_csv(run / "train.csv")["frames"] == [192, 384]
+
+
 def test_value_loss_is_clipped_by_default_and_plain_with_clip_value_null():
     """Prediction v = 1, old value 0, target 2: clipped (0.2) the loss is max((v - 2)^2,
     (0.2 - 2)^2) = 3.24; unclipped (v - 2)^2 = 1; both times critic_coeff 0.1."""
@@ -264,6 +289,52 @@ def test_advantages_are_standardised_per_minibatch_by_default_or_over_the_whole_
     names_the_choices = r"agent\.normalize_advantage must be one of \['minibatch', 'batch', 'none'\]"
     with pytest.raises(ValueError, match=names_the_choices):
         check_config(bad)
+
+
+def test_gae_horizon_cuts_the_trace_and_bootstraps_from_the_value_there():
+    """A rollout of 4 steps without episode ends, by hand from its values V and TD errors d: the
+    whole rollout gives A_1 = d_1 + gl d_2 + gl^2 d_3; cut after every 2 steps, A_1 = d_1 and
+    A_0 = d_0 + gl d_1 (gl = gamma x lambda), as two rollouts of 2 steps; A_3 = d_3 either way.
+    The env's own episode ends are left as they were."""
+    cfg = compose_cfg(["+exp=bounce_ppo", "agent.gae_horizon=2"])
+    check_config(cfg)
+    assert gae_horizon(cfg) == 2 and gae_horizon(compose_cfg(["+exp=bounce_ppo"])) is None
+    torch.manual_seed(0)
+    agent = Agent(("prop", "tactile"), P + T, A)
+    g = torch.Generator().manual_seed(2)
+
+    def observations():
+        return {
+            "prop": torch.randn(1, 4, P, generator=g),
+            "tactile": (torch.rand(1, 4, T, generator=g) > 0.5).float(),
+        }
+
+    no_end = torch.zeros(1, 4, 1, dtype=torch.bool)
+    nxt = {
+        **observations(),
+        "reward": torch.randn(1, 4, 1, generator=g),
+        "done": no_end,
+        "terminated": no_end,
+    }
+    batch = TensorDict({**observations(), "next": nxt}, [1, 4])
+    with torch.no_grad():
+        agent.policy(batch)
+        value = agent.value_norm.denormalize(agent.normalised_value(batch)).flatten()
+        last = agent.raw_value(batch["next"][:, -1]).flatten()
+    gl = 0.99 * 0.95
+    d = (batch["next", "reward"].flatten() + 0.99 * torch.cat([value[1:], last]) - value).tolist()
+    advantages = {}
+    for horizon in (None, 2):
+        td = batch.clone()
+        estimate_advantages(td, copy.deepcopy(agent), make_advantage(cfg), horizon)  # the norm moves
+        advantages[horizon] = td["advantage"].flatten().tolist()
+        assert not td["next", "done"].any()
+    assert advantages[None][1] == pytest.approx(d[1] + gl * d[2] + gl**2 * d[3], abs=1e-5)
+    assert advantages[2][1] == pytest.approx(d[1], abs=1e-5)
+    assert advantages[2][0] == pytest.approx(d[0] + gl * d[1], abs=1e-5)
+    assert advantages[2][3] == pytest.approx(advantages[None][3]) == pytest.approx(d[3], abs=1e-5)
+    with pytest.raises(ValueError, match=r"agent\.gae_horizon must be a positive integer or null"):
+        check_config(compose_cfg(["+exp=bounce_ppo", "agent.gae_horizon=0"]))
 
 
 def test_the_shared_agent_reads_the_policys_latent_for_its_value():

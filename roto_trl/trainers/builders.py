@@ -221,6 +221,43 @@ def make_advantage(cfg) -> GAE:
     return GAE(gamma=float(a.gamma), lmbda=float(a.lmbda), value_network=None, average_gae=whole_batch)
 
 
+def apply_rollout_floor(cfg) -> None:
+    """Raise ``agent.rollout_len`` to ``agent.min_rollout_len`` where it is shorter (edits ``cfg``).
+
+    The CPU profile's floor of 32 steps: at its 256 worlds the paper's 16-step rollouts of
+    ``bounce_ppo`` (tuned for 4096 worlds) learned and then fell back where 32 steps held (README,
+    "Results on a CPU"); exps with R >= 32 keep theirs. Says so in one line when it changes R.
+    None (the default, and configs saved before the option) leaves R as it is.
+    """
+    a = _cfg(cfg).agent
+    floor = a.get("min_rollout_len")
+    if floor is None:
+        return
+    if isinstance(floor, bool) or not isinstance(floor, int) or floor < 1:
+        raise ValueError(
+            f"agent.min_rollout_len must be a positive integer or null (no floor), got {floor!r}"
+        )
+    if a.rollout_len < floor:
+        print(
+            f"agent.rollout_len: {a.rollout_len} -> {floor} (agent.min_rollout_len; "
+            f"agent.min_rollout_len=null keeps {a.rollout_len})"
+        )
+        a.rollout_len = floor
+
+
+def gae_horizon(cfg) -> int | None:
+    """``agent.gae_horizon``: steps after which GAE's trace is cut (``store_rollout``), or None.
+
+    None (the default, and configs saved before the option) cuts only at the rollout's end.
+    """
+    horizon = _cfg(cfg).agent.get("gae_horizon")
+    if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1):
+        raise ValueError(
+            f"agent.gae_horizon must be a positive integer or null (the rollout), got {horizon!r}"
+        )
+    return horizon
+
+
 def make_collector(cfg, env: TransformedEnv, agent: Agent) -> Collector:
     """Rollouts of ``rollout_len`` steps of every training world, ``[num_envs, rollout_len]``."""
     cfg = _cfg(cfg)

@@ -16,7 +16,7 @@ from roto_trl.trainers.lr_schedule import kl_k3
 
 
 @torch.no_grad()
-def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage) -> None:
+def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage, horizon: int | None = None) -> None:
     """Write ``advantage`` and normalised ``value_target`` / ``state_value`` into ``batch`` [N, R].
 
     Values of the rollout's observations come from the latent ``z`` the policy wrote while
@@ -24,6 +24,9 @@ def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage) -> None:
     observation's value is the next step's, except after the last step and at episode ends,
     where the episode's final observation is encoded. GAE runs on the return scale; the value
     targets are then normalised with the running statistics, updated with this rollout's returns.
+    ``horizon`` H < R cuts GAE's trace after every H steps as if the rollout ended there (it
+    bootstraps from the next step's value), so an R-step rollout gets the advantages of R / H
+    rollouts of H steps (``agent.gae_horizon``, the rollout-length ablation).
     """
     norm = agent.value_norm
     value = norm.denormalize(agent.normalised_value(batch))  # [N, R, 1]
@@ -35,7 +38,10 @@ def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage) -> None:
     next_value[where] = agent.raw_value(nxt[where])
     batch["state_value"] = value
     nxt["state_value"] = next_value
+    done = nxt["done"]
+    nxt["done"] = done | trace_cuts(done, horizon)
     advantage(batch)
+    nxt["done"] = done  # the episode ends as the env gave them, for the rollout's statistics
     target = batch["value_target"]
     if not bool(torch.isfinite(target).all() and torch.isfinite(batch["advantage"]).all()):
         raise NonFiniteError("the return estimate is NaN or inf: check the reward scales and the env")
@@ -44,10 +50,19 @@ def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage) -> None:
     batch["state_value"] = norm.normalize(value)
 
 
-def store_rollout(batch: TensorDictBase, agent: Agent, advantage, buffer, aux=None) -> None:
-    """Estimate advantages of the rollout ``batch`` [N, R], put it in the (emptied) rollout
-    buffer and, with an SSL objective, in the auxiliary memory."""
-    estimate_advantages(batch, agent, advantage)
+def trace_cuts(done: torch.Tensor, horizon: int | None) -> torch.Tensor:
+    """Bool like ``done`` [N, R, 1], true after every ``horizon``-th step (none for ``None``)."""
+    cuts = torch.zeros_like(done, dtype=torch.bool)
+    if horizon is not None:
+        cuts[:, horizon - 1 :: horizon] = True
+    return cuts
+
+
+def store_rollout(batch: TensorDictBase, agent: Agent, advantage, buffer, aux=None, horizon=None) -> None:
+    """Estimate advantages of the rollout ``batch`` [N, R] (GAE's trace cut every ``horizon``
+    steps, if given), put it in the (emptied) rollout buffer and, with an SSL objective, in the
+    auxiliary memory."""
+    estimate_advantages(batch, agent, advantage, horizon)
     buffer.empty()
     buffer.extend(batch.reshape(-1))
     if aux is not None:
