@@ -225,8 +225,10 @@ def apply_rollout_floor(cfg) -> None:
     """Raise ``agent.rollout_len`` to ``agent.min_rollout_len`` where it is shorter (edits ``cfg``).
 
     The CPU profile's floor of 32 steps: at its 256 worlds the paper's 16-step rollouts of
-    ``bounce_ppo`` (tuned for 4096 worlds) learned and then fell back where 32 steps held (README,
-    "Results on a CPU"); exps with R >= 32 keep theirs. Says so in one line when it changes R.
+    ``bounce_ppo`` (tuned for 4096 worlds, 4,096 frames per update here) learned and fell back
+    (final policies 21.8 bounces per 10 s, 3 seeds); 32 steps ended at 33.5 over 9 seeds, 5 of
+    them holding (README, "Results on a CPU"). Exps with R >= 32 keep theirs. Says so in one line
+    when it changes R.
     None (the default, and configs saved before the option) leaves R as it is.
     """
     a = _cfg(cfg).agent
