@@ -82,7 +82,7 @@ from roto_trl.trainers.run_lock import RunLock
 from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due, evaluations_left
 from roto_trl.trainers.std_ceiling import DEFAULT_FRAMES, checked_std_ceiling
 from roto_trl.trainers.threads import job_threads
-from roto_trl.utils.cli import is_number
+from roto_trl.utils.cli import is_number, positive_int_or_null
 from roto_trl.utils.paths import writable_dir
 from roto_trl.utils.resources import resource_dir
 
@@ -132,9 +132,7 @@ def check_config(cfg: DictConfig) -> None:
     if cfg.logger.backend not in BACKENDS:
         raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
     check_device(cfg.device)
-    threads = cfg.torch_threads
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
-        raise ValueError(f"torch_threads must be a positive integer or null, got {threads!r}")
+    positive_int_or_null("torch_threads", cfg.torch_threads)
     interval = cfg.checkpoint.interval_minutes
     if not (is_number(interval) and interval >= 0):
         raise ValueError(f"checkpoint.interval_minutes must be a number >= 0, got {interval!r}")

@@ -34,7 +34,7 @@ from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.lr_schedule import KLAdaptiveLR, LinearDecayLR
 from roto_trl.trainers.policy_average import PolicyAverage, checked_decay
 from roto_trl.trainers.std_ceiling import DEFAULT_FRAMES, StdCeiling, checked_std_ceiling
-from roto_trl.utils.cli import number_pair
+from roto_trl.utils.cli import number_pair, positive_int_or_null
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
 
@@ -232,14 +232,8 @@ def apply_rollout_floor(cfg) -> None:
     None (the default, and configs saved before the option) leaves R as it is.
     """
     a = _cfg(cfg).agent
-    floor = a.get("min_rollout_len")
-    if floor is None:
-        return
-    if isinstance(floor, bool) or not isinstance(floor, int) or floor < 1:
-        raise ValueError(
-            f"agent.min_rollout_len must be a positive integer or null (no floor), got {floor!r}"
-        )
-    if a.rollout_len < floor:
+    floor = positive_int_or_null("agent.min_rollout_len", a.get("min_rollout_len"), "no floor")
+    if floor is not None and a.rollout_len < floor:
         print(
             f"agent.rollout_len: {a.rollout_len} -> {floor} (agent.min_rollout_len; "
             f"agent.min_rollout_len=null keeps {a.rollout_len})"
@@ -252,12 +246,7 @@ def gae_horizon(cfg) -> int | None:
 
     None (the default, and configs saved before the option) cuts only at the rollout's end.
     """
-    horizon = _cfg(cfg).agent.get("gae_horizon")
-    if horizon is not None and (isinstance(horizon, bool) or not isinstance(horizon, int) or horizon < 1):
-        raise ValueError(
-            f"agent.gae_horizon must be a positive integer or null (the rollout), got {horizon!r}"
-        )
-    return horizon
+    return positive_int_or_null("agent.gae_horizon", _cfg(cfg).agent.get("gae_horizon"), "the rollout")
 
 
 def make_collector(cfg, env: TransformedEnv, agent: Agent) -> Collector:

@@ -39,7 +39,7 @@ def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage, horizon:
     batch["state_value"] = value
     nxt["state_value"] = next_value
     done = nxt["done"]
-    nxt["done"] = done | trace_cuts(done, horizon)
+    nxt["done"] = with_trace_cuts(done, horizon)  # ``done`` itself without a horizon
     advantage(batch)
     nxt["done"] = done  # the episode ends as the env gave them, for the rollout's statistics
     target = batch["value_target"]
@@ -50,11 +50,13 @@ def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage, horizon:
     batch["state_value"] = norm.normalize(value)
 
 
-def trace_cuts(done: torch.Tensor, horizon: int | None) -> torch.Tensor:
-    """Bool like ``done`` [N, R, 1], true after every ``horizon``-th step (none for ``None``)."""
-    cuts = torch.zeros_like(done, dtype=torch.bool)
-    if horizon is not None:
-        cuts[:, horizon - 1 :: horizon] = True
+def with_trace_cuts(done: torch.Tensor, horizon: int | None) -> torch.Tensor:
+    """``done`` [N, R, 1], also true after every ``horizon``-th step (a new tensor); ``done``
+    itself for ``None``, so the default costs nothing per iteration."""
+    if horizon is None:
+        return done
+    cuts = done.clone()
+    cuts[:, horizon - 1 :: horizon] = True
     return cuts
 
 

@@ -47,6 +47,15 @@ def number_pair(value) -> tuple[float, float] | None:
     return (value[0], value[1]) if all(is_number(v) for v in value) else None
 
 
+def positive_int_or_null(key: str, value, null_means: str = "") -> int | None:
+    """``value`` when it is null or an integer >= 1; otherwise a one-line ``ValueError`` naming
+    ``key`` (and what null means, when given)."""
+    if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+        meaning = f" ({null_means})" if null_means else ""
+        raise ValueError(f"{key} must be a positive integer or null{meaning}, got {value!r}")
+    return value
+
+
 def check_int(prog: str, cfg: DictConfig, key: str, minimum: int, *, optional: bool = False) -> None:
     """Exit with one line naming ``key`` unless ``cfg[key]`` is an integer >= ``minimum`` (or
     null when ``optional``)."""
