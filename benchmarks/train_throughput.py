@@ -59,7 +59,7 @@ from roto_trl.trainers.builders import (
     make_rollout_buffer,
     make_train_env,
 )
-from roto_trl.trainers.ppo import minibatch_step, ppo_update, store_rollout
+from roto_trl.trainers.ppo import minibatch_keys, minibatch_step, ppo_update, store_rollout
 from roto_trl.utils.resources import resource_dir
 
 PEER_WIDTH = {p: max(7, len(p)) for p in PEERS}  # each peer's column width
@@ -101,13 +101,14 @@ def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
     params = list(agent.parameters())
     collector = make_collector(cfg, env, agent)
     buffer = make_rollout_buffer(cfg)
+    keys = minibatch_keys(agent, loss_fn)
     phases = {"collect": 0.0, "advantages": 0.0, "update": 0.0}
     frames = 0
     t_collect = time.perf_counter()
     for i, batch in enumerate(collector):
         collect = time.perf_counter() - t_collect
         t0 = time.perf_counter()
-        store_rollout(batch, agent, advantage, buffer, aux)
+        store_rollout(batch, agent, advantage, buffer, aux, keys=keys)
         t1 = time.perf_counter()
         ppo_update(cfg, buffer, agent, loss_fn, optimizer, params, aux)
         t2 = time.perf_counter()

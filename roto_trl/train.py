@@ -75,7 +75,7 @@ from roto_trl.trainers.evaluation import evaluate, selection_key
 from roto_trl.trainers.interrupts import StopRequests
 from roto_trl.trainers.loggers import BACKENDS, MetricLogger, read_csv
 from roto_trl.trainers.policy_average import POLICY_AVERAGE_KEY, averaged, checked_decay
-from roto_trl.trainers.ppo import ppo_update, rollout_stats, store_rollout
+from roto_trl.trainers.ppo import minibatch_keys, ppo_update, rollout_stats, store_rollout
 from roto_trl.trainers.progress import TrainingProgress
 from roto_trl.trainers.run_dir import finished_reason, resume_config, rewind
 from roto_trl.trainers.run_lock import RunLock
@@ -328,6 +328,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     # 3. the collector and the rollout buffer
     collector = make_collector(cfg, env, agent)
     buffer = make_rollout_buffer(cfg)
+    keys = minibatch_keys(agent, loss_fn, terms)  # what the buffer keeps of each rollout
     logger = MetricLogger(
         run_dir,
         cfg.logger.backend,
@@ -390,7 +391,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             frames += batch.numel()
 
             t0 = time.perf_counter()
-            store_rollout(batch, agent, advantage, buffer, aux, horizon)
+            store_rollout(batch, agent, advantage, buffer, aux, horizon, keys)
             if lr_schedule is not None:  # the anneal's ramp: the fraction of the budget trained before
                 lr_schedule.set_progress((frames - batch.numel()) / cfg.total_frames)
             losses, aux_rows = ppo_update(

@@ -29,12 +29,22 @@ from roto_trl.trainers.builders import (
     make_optimizer,
     make_policy_terms,
     make_ppo_loss,
+    make_rollout_buffer,
     make_std_ceiling,
+    make_train_env,
 )
 from roto_trl.trainers.loggers import read_csv
 from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3, remaining
 from roto_trl.trainers.policy_average import PolicyAverage, policy_parameters
-from roto_trl.trainers.ppo import effective_rank, estimate_advantages, minibatch_loss, saturation
+from roto_trl.trainers.ppo import (
+    effective_rank,
+    estimate_advantages,
+    minibatch_keys,
+    minibatch_loss,
+    ppo_update,
+    saturation,
+    store_rollout,
+)
 from roto_trl.trainers.std_ceiling import std_ceiling
 
 P, T, A = 6, 4, 3
@@ -671,3 +681,43 @@ def test_the_proximal_feature_term_holds_the_encoder_to_the_rollouts_latent():
     for bad in ("-1", "'strong'"):
         with pytest.raises(ValueError, match=r"agent\.proximal_feature_coeff must be a number >= 0"):
             check_config(compose_cfg(["+exp=bounce_ppo", f"agent.proximal_feature_coeff={bad}"]))
+
+
+# ---------------------------------------------------------------------------- the rollout buffer
+
+
+def test_the_buffer_keeps_only_what_a_minibatch_reads_and_the_update_is_the_same():
+    """A real Bounce rollout (8 worlds, 16 steps): the buffer with ``minibatch_keys`` holds the
+    observations, action, log-probability, advantage, value target and old value (and the
+    acting-time latent only for the proximal feature term), and PPO's update from it is the
+    update from the whole rollout, number for number."""
+    cfg = compose_cfg(["+exp=bounce_ppo", *TINY, "agent.shared_encoder=false"])
+    env = make_train_env(cfg)
+    torch.manual_seed(0)
+    agent = agent_for_env(cfg, env)
+    with torch.no_grad():
+        rollout = env.rollout(16, agent.policy, break_when_any_done=False, auto_cast_to_device=False)
+    env.close()
+    assert rollout.batch_size == (8, 16)
+    loss_fn = make_ppo_loss(cfg, agent)
+    keys = minibatch_keys(agent, loss_fn)
+    expected = {"prop", "tactile", "action", "action_log_prob", "advantage", "value_target", "state_value"}
+    assert set(keys) == expected
+    (term,) = make_policy_terms(compose_cfg(["+exp=bounce_ppo", "agent.proximal_feature_coeff=1.0"]), agent)
+    assert set(minibatch_keys(agent, loss_fn, (term,))) == expected | {"z"}
+    results = []
+    for kept in (None, keys):
+        learner = copy.deepcopy(agent)
+        loss = make_ppo_loss(cfg, learner)
+        optimizer = make_optimizer(cfg, learner)
+        params = [p for group in optimizer.param_groups for p in group["params"]]
+        buffer = make_rollout_buffer(cfg)
+        store_rollout(rollout.clone(), learner, make_advantage(cfg), buffer, keys=kept)
+        stored = set(buffer[:].keys()) - {"index"}  # the buffer's own entry
+        assert stored == expected if kept else {"next", "z", "loc", "scale"} < stored
+        torch.manual_seed(1)  # the minibatches' order
+        means, _ = ppo_update(cfg, buffer, learner, loss, optimizer, params)
+        results.append((means, [p.detach().clone() for p in params]))
+    (whole, whole_params), (selected, selected_params) = results
+    assert whole["loss_objective"] != 0 and whole == selected
+    assert all(torch.equal(a, b) for a, b in zip(whole_params, selected_params, strict=True))

@@ -7,10 +7,12 @@ from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDictBase
+from tensordict.utils import NestedKey
 from torchrl.objectives import LossModule
 
 from roto_trl.modules.agent import LATENT_KEY, ROLLOUT_LATENT_KEY, Agent
 from roto_trl.objectives.mean_bound import SATURATED
+from roto_trl.objectives.proximal_feature import ProximalFeatureLoss
 from roto_trl.trainers.errors import NonFiniteError
 from roto_trl.trainers.lr_schedule import kl_k3
 
@@ -60,13 +62,32 @@ def with_trace_cuts(done: torch.Tensor, horizon: int | None) -> torch.Tensor:
     return cuts
 
 
-def store_rollout(batch: TensorDictBase, agent: Agent, advantage, buffer, aux=None, horizon=None) -> None:
+def minibatch_keys(agent: Agent, loss_fn: LossModule, terms: Sequence[LossModule] = ()) -> list[NestedKey]:
+    """The rollout entries a PPO minibatch reads (``minibatch_loss``): the observations the
+    encoders take, ``loss_fn``'s action, log-probability, advantage, value target and old value,
+    and the acting-time latent where a ``ProximalFeatureLoss`` compares against it.
+
+    Why: the rollout holds about three times as much (the next observations, raw contact forces,
+    the privileged state, reward terms, the distribution's parameters); gathering only these
+    makes the buffer's copy and each minibatch's random gather about a third as large.
+    """
+    k = loss_fn.tensor_keys
+    keys = [*agent.obs_keys, k.action, k.sample_log_prob, k.advantage, k.value_target, k.value]
+    if any(isinstance(term, ProximalFeatureLoss) for term in terms):
+        keys.append(LATENT_KEY)
+    return keys
+
+
+def store_rollout(
+    batch: TensorDictBase, agent: Agent, advantage, buffer, aux=None, horizon=None, keys=None
+) -> None:
     """Estimate advantages of the rollout ``batch`` [N, R] (GAE's trace cut every ``horizon``
-    steps, if given), put it in the (emptied) rollout buffer and, with an SSL objective, in the
-    auxiliary memory."""
+    steps, if given), put its entries ``keys`` (``minibatch_keys``; None: all of them) in the
+    (emptied) rollout buffer and, with an SSL objective, the whole rollout in the auxiliary
+    memory."""
     estimate_advantages(batch, agent, advantage, horizon)
     buffer.empty()
-    buffer.extend(batch.reshape(-1))
+    buffer.extend((batch if keys is None else batch.select(*keys)).reshape(-1))
     if aux is not None:
         aux.memory.add(batch)
 
