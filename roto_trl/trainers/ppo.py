@@ -68,8 +68,10 @@ def minibatch_keys(agent: Agent, loss_fn: LossModule, terms: Sequence[LossModule
     and the acting-time latent where a ``ProximalFeatureLoss`` compares against it.
 
     Why: the rollout holds about three times as much (the next observations, raw contact forces,
-    the privileged state, reward terms, the distribution's parameters); gathering only these
-    makes the buffer's copy and each minibatch's random gather about a third as large.
+    the privileged state, reward terms, the distribution's parameters); keeping only these makes
+    the buffer a third as large (Bounce: 1,456 of 4,302 bytes a step, 95 MB instead of 282 at
+    4096 worlds x 16 steps) and its copy and gathers a little faster (under 1 % of an
+    iteration, README "Throughput").
     """
     k = loss_fn.tensor_keys
     keys = [*agent.obs_keys, k.action, k.sample_log_prob, k.advantage, k.value_target, k.value]
