@@ -714,7 +714,7 @@ def test_the_buffer_keeps_only_what_a_minibatch_reads_and_the_update_is_the_same
         buffer = make_rollout_buffer(cfg)
         store_rollout(rollout.clone(), learner, make_advantage(cfg), buffer, keys=kept)
         stored = set(buffer[:].keys()) - {"index"}  # the buffer's own entry
-        assert stored == expected if kept else {"next", "z", "loc", "scale"} < stored
+        assert (stored == expected) if kept else ({"next", "z", "loc", "scale"} < stored)
         torch.manual_seed(1)  # the minibatches' order
         means, _ = ppo_update(cfg, buffer, learner, loss, optimizer, params)
         results.append((means, [p.detach().clone() for p in params]))
