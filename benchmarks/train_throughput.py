@@ -6,7 +6,8 @@ For each experiment and world count it measures, in one process:
   sim      the same env stepped with random actions through ``step_and_maybe_reset``;
   update   the bare update: ``epochs x minibatches`` steps of forward + backward + optimiser of
            the same agent and losses (``ClipPPOLoss``, the SSL loss) on one minibatch of the
-           real rollout drawn once, so no sampling, advantages or logging;
+           real rollout drawn once, so no sampling, advantages or logging (the mean of three
+           rounds, as ours is the mean of its timed iterations);
   skrl, rsl_rl  their PPO (same 1024-512-256 ELU network, R, mb, le, lr, clip values; rsl_rl's
            MLP without LayerNorm, ``rsl_rl_ln`` the same with our LayerNorms) on our Gymnasium
            interface, when installed (``pip install -e .[bench]``); they have no
@@ -136,8 +137,7 @@ def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
         bare_update(cfg, agent, loss_fn, opt, params, aux, minibatch, aux_batch)  # warm-up
     rounds = 3  # alternating, so drift hits both Adams alike; their mean, as ours is a mean over
     # iterations (the fastest round against the mean iteration would understate ours / limit)
-    for name in updates:
-        result[name] = 0.0
+    result.update(dict.fromkeys(updates, 0.0))
     for _ in range(rounds):
         for name, opt in updates.items():
             result[name] += bare_update(cfg, agent, loss_fn, opt, params, aux, minibatch, aux_batch) / rounds
