@@ -85,8 +85,14 @@ def test_a_multirun_job_runs_in_its_job_directory_and_continues_a_checkpoint_the
     assert cfg.run_dir == str(tmp_path / "trial")  # our sweeper's trial directory stays as it is
 
 
+# Each job trains for several seconds: a job of TINY's 256 frames ended in 1.8 s on CI, before the
+# second worker, still importing torch, had started its own (2 s later), so "at once" was not seen.
+MULTIRUN_FRAMES = 4096
+
+
 def multirun(sweep_dir: Path, *args: str, timeout: float = 400) -> subprocess.CompletedProcess:
-    command = [*TRAIN, "-m", *TINY_SHARED, "seed=0,1", f"hydra.sweep.dir={sweep_dir}", *args]
+    frames = [f"total_frames={MULTIRUN_FRAMES}", f"eval.every_frames={MULTIRUN_FRAMES}"]
+    command = [*TRAIN, "-m", *TINY_SHARED, *frames, "seed=0,1", f"hydra.sweep.dir={sweep_dir}", *args]
     return subprocess.run(command, capture_output=True, text=True, timeout=timeout)
 
 
@@ -95,7 +101,7 @@ def check_both_runs(sweep_dir: Path, threads: int) -> None:
     for seed in (0, 1):
         run_dir = sweep_dir / f"{seed}-find_ppo-s{seed}"  # <job number>-<exp_name>-s<seed>
         summary = json.loads((run_dir / "summary.json").read_text())
-        assert (summary["seed"], summary["frames"]) == (seed, 256)
+        assert (summary["seed"], summary["frames"]) == (seed, MULTIRUN_FRAMES)
         assert (run_dir / "eval.json").is_file()
         config = yaml.safe_load((run_dir / "config.yaml").read_text())
         assert config["run_dir"] == str(run_dir)
