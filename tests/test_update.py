@@ -444,6 +444,33 @@ def test_adam_betas_from_the_config_torchs_by_default():
             check_config(compose_cfg(["+exp=bounce_ppo", f"agent.adam_betas={bad}"]))
 
 
+def test_weight_decay_shrinks_the_weight_matrices_by_lr_times_decay_and_nothing_else():
+    agent = Agent(("prop",), P, A)
+    assert isinstance(make_optimizer(compose_cfg(["+exp=bounce_ppo"]), agent), torch.optim.Adam)  # off
+    cfg = compose_cfg(["+exp=bounce_ppo", "agent.weight_decay=0.5", "agent.lr=0.01"])
+    optimizer = make_optimizer(cfg, agent)
+    assert isinstance(optimizer, torch.optim.AdamW)
+    named = dict(agent.named_parameters())
+    before = {name: p.detach().clone() for name, p in named.items()}
+    for p in agent.parameters():  # a zero gradient: Adam's own step is 0, only the decay moves
+        p.grad = torch.zeros_like(p)
+    optimizer.step()
+    for name, p in named.items():
+        # a matrix: w <- w - lr * decay * w = 0.995 w; biases, LayerNorm and the log-std stay
+        expected = before[name] * (1 - 0.01 * 0.5) if p.dim() >= 2 else before[name]
+        torch.testing.assert_close(p.detach(), expected, msg=name)
+    assert sum(len(g["params"]) for g in optimizer.param_groups) == len(named)  # each once
+    fixed = make_optimizer(
+        compose_cfg(["+exp=bounce_ppo", "agent.weight_decay=0.5", "agent.log_std_fixed_lr=true"]), agent
+    )
+    assert [g["weight_decay"] for g in fixed.param_groups] == [0.5, 0.0, 0.0]
+    assert fixed.param_groups[2]["params"] == [agent.policy_head.log_std]
+    assert fixed.param_groups[2]["kl_adaptive"] is False
+    for bad in ("-0.1", "a"):
+        with pytest.raises(ValueError, match=r"agent\.weight_decay must be a number >= 0"):
+            check_config(compose_cfg(["+exp=bounce_ppo", f"agent.weight_decay={bad}"]))
+
+
 def test_the_forward_model_learns_from_the_action_the_env_applied():
     from roto_trl.trainers.builders import agent_for_env, make_aux_update, make_collector, make_train_env
 

@@ -34,7 +34,7 @@ from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.lr_schedule import KLAdaptiveLR, LinearDecayLR
 from roto_trl.trainers.policy_average import PolicyAverage, checked_decay
 from roto_trl.trainers.std_ceiling import DEFAULT_FRAMES, StdCeiling, checked_std_ceiling
-from roto_trl.utils.cli import number_pair, positive_int_or_null
+from roto_trl.utils.cli import is_number, number_pair, positive_int_or_null
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
 
@@ -286,6 +286,15 @@ def adam_betas(value) -> tuple[float, float]:
     return float(pair[0]), float(pair[1])
 
 
+def weight_decay(value) -> float:
+    """``agent.weight_decay`` as a float >= 0 (None: 0, off), or a one-line error naming the fix."""
+    if value is None:
+        return 0.0
+    if not (is_number(value) and float(value) >= 0.0):
+        raise ValueError(f"agent.weight_decay must be a number >= 0 (0: off, e.g. 1.0), got {value!r}")
+    return float(value)
+
+
 def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     """The PPO optimiser: one Adam over encoder + policy + value (the SSL gradient reaches the
     encoder through the same backward, see ``roto_trl.trainers.auxiliary``).
@@ -303,16 +312,36 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     (e.g. ``[0.99, 0.99]``) are Dohare et al.'s (2023, "Overcoming policy collapse in deep RL")
     remedy for PPO's collapse in long runs: with beta2 > beta1 the second moment lags the first,
     and a gradient that grows after a quiet stretch takes outsized steps.
+
+    ``agent.weight_decay`` (default 0, off) > 0 makes it AdamW: after each step every weight
+    matrix (not the biases, LayerNorm gains or the log-std) shrinks by ``lr * weight_decay`` of
+    itself, against the weights' growth over a run. The decay is scaled by the learning rate,
+    which the KL rule holds at a few 1e-5 on Bounce, so useful values are near 1, not the usual
+    0.01. The matrices come first, in a group of their own, the other parameters after.
     """
     a = _cfg(cfg).agent
     lr, fused = float(a.lr), bool(a.get("fused_adam", True))
     betas = adam_betas(a.get("adam_betas", ADAM_BETAS))  # older runs lack the key: torch's
-    if not bool(a.get("log_std_fixed_lr", False)):
+    decay = weight_decay(a.get("weight_decay"))  # older runs lack the key: off
+    fixed_log_std = bool(a.get("log_std_fixed_lr", False))
+    if decay == 0.0 and not fixed_log_std:
         return torch.optim.Adam(agent.parameters(), lr=lr, betas=betas, fused=fused)
     log_std = agent.policy_head.log_std
     networks = [p for p in agent.parameters() if p is not log_std]
-    groups = [{"params": networks}, {"params": [log_std], "kl_adaptive": False}]
-    return torch.optim.Adam(groups, lr=lr, betas=betas, fused=fused)
+    if decay == 0.0:
+        groups = [{"params": networks}]
+    else:
+        groups = [
+            {"params": [p for p in networks if p.dim() >= 2], "weight_decay": decay},
+            {"params": [p for p in networks if p.dim() < 2], "weight_decay": 0.0},
+        ]
+    if fixed_log_std:
+        groups.append({"params": [log_std], "kl_adaptive": False, "weight_decay": 0.0})
+    else:
+        groups[-1]["params"].append(log_std)
+    if decay == 0.0:
+        return torch.optim.Adam(groups, lr=lr, betas=betas, fused=fused)
+    return torch.optim.AdamW(groups, lr=lr, betas=betas, fused=fused)
 
 
 LR_SCHEDULES = ("fixed", "kl_adaptive")
