@@ -13,15 +13,12 @@ from torchrl.objectives import LossModule
 from roto_trl.modules.agent import LATENT_KEY, ROLLOUT_LATENT_KEY
 from roto_trl.objectives.common import required_entry
 from roto_trl.objectives.functional import feature_drift
-from roto_trl.utils.cli import is_number
+from roto_trl.utils.cli import non_negative_or_off
 
 
 def checked_feature_coeff(coeff) -> float:
     """``proximal_feature_coeff`` as a float (None: 0, off), or a one-line error."""
-    coeff = 0.0 if coeff is None else coeff
-    if not (is_number(coeff) and coeff >= 0):
-        raise ValueError(f"agent.proximal_feature_coeff must be a number >= 0 (0: off), got {coeff!r}")
-    return float(coeff)
+    return non_negative_or_off("agent.proximal_feature_coeff", coeff)
 
 
 class ProximalFeatureLoss(LossModule):

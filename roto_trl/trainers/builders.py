@@ -34,7 +34,7 @@ from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.lr_schedule import KLAdaptiveLR, LinearDecayLR
 from roto_trl.trainers.policy_average import PolicyAverage, checked_decay
 from roto_trl.trainers.std_ceiling import DEFAULT_FRAMES, StdCeiling, checked_std_ceiling
-from roto_trl.utils.cli import is_number, number_pair, positive_int_or_null
+from roto_trl.utils.cli import non_negative_or_off, number_pair, positive_int_or_null
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
 
@@ -288,11 +288,7 @@ def adam_betas(value) -> tuple[float, float]:
 
 def weight_decay(value) -> float:
     """``agent.weight_decay`` as a float >= 0 (None: 0, off), or a one-line error naming the fix."""
-    if value is None:
-        return 0.0
-    if not (is_number(value) and float(value) >= 0.0):
-        raise ValueError(f"agent.weight_decay must be a number >= 0 (0: off, e.g. 1.0), got {value!r}")
-    return float(value)
+    return non_negative_or_off("agent.weight_decay", value, example="1.0")
 
 
 def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
@@ -328,9 +324,8 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
         return torch.optim.Adam(agent.parameters(), lr=lr, betas=betas, fused=fused)
     log_std = agent.policy_head.log_std
     networks = [p for p in agent.parameters() if p is not log_std]
-    if decay == 0.0:
-        groups = [{"params": networks}]
-    else:
+    groups = [{"params": networks}]  # without decay one group, as checkpoints from before it hold
+    if decay > 0.0:
         groups = [
             {"params": [p for p in networks if p.dim() >= 2], "weight_decay": decay},
             {"params": [p for p in networks if p.dim() < 2], "weight_decay": 0.0},
@@ -339,9 +334,8 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
         groups.append({"params": [log_std], "kl_adaptive": False, "weight_decay": 0.0})
     else:
         groups[-1]["params"].append(log_std)
-    if decay == 0.0:
-        return torch.optim.Adam(groups, lr=lr, betas=betas, fused=fused)
-    return torch.optim.AdamW(groups, lr=lr, betas=betas, fused=fused)
+    adam = torch.optim.AdamW if decay > 0.0 else torch.optim.Adam
+    return adam(groups, lr=lr, betas=betas, fused=fused)
 
 
 LR_SCHEDULES = ("fixed", "kl_adaptive")

@@ -47,6 +47,16 @@ def number_pair(value) -> tuple[float, float] | None:
     return (value[0], value[1]) if all(is_number(v) for v in value) else None
 
 
+def non_negative_or_off(key: str, value, example: str = "") -> float:
+    """``value`` as a float when it is a number >= 0 (null: 0, off); otherwise a one-line
+    ``ValueError`` naming ``key`` (and an example value, when given)."""
+    value = 0.0 if value is None else value
+    if not (is_number(value) and value >= 0):
+        hint = f", e.g. {example}" if example else ""
+        raise ValueError(f"{key} must be a number >= 0 (0: off{hint}), got {value!r}")
+    return float(value)
+
+
 def positive_int_or_null(key: str, value, null_means: str = "") -> int | None:
     """``value`` when it is null or an integer >= 1; otherwise a one-line ``ValueError`` naming
     ``key`` (and what null means, when given)."""
