@@ -11,7 +11,7 @@ from torchrl.objectives import LossModule
 
 from roto_trl.modules.networks import PolicyHead
 from roto_trl.objectives.functional import excess_square
-from roto_trl.utils.cli import is_number
+from roto_trl.utils.cli import is_number, non_negative_or_off
 
 SATURATED = 0.9  # |tanh(u)| above this counts as saturated in the diagnostics (|u| > 1.47)
 DEFAULT_BOUND = 2.0  # tanh(2) = 0.964, tanh'(2) = 0.07
@@ -20,12 +20,9 @@ DEFAULT_BOUND = 2.0  # tanh(2) = 0.964, tanh'(2) = 0.07
 def checked_mean_bound(bound, coeff) -> tuple[float, float]:
     """``(mean_bound, mean_bound_coeff)`` as floats (None: the defaults, 2.0 and 0), or a one-line error."""
     bound = DEFAULT_BOUND if bound is None else bound
-    coeff = 0.0 if coeff is None else coeff
     if not (is_number(bound) and bound > 0):
-        raise ValueError(f"mean_bound must be a number > 0, got {bound!r}")
-    if not (is_number(coeff) and coeff >= 0):
-        raise ValueError(f"mean_bound_coeff must be a number >= 0 (0: off), got {coeff!r}")
-    return float(bound), float(coeff)
+        raise ValueError(f"agent.mean_bound must be a number > 0, got {bound!r}")
+    return float(bound), non_negative_or_off("agent.mean_bound_coeff", coeff)
 
 
 class PolicyMeanBoundLoss(LossModule):
