@@ -228,6 +228,29 @@ def test_the_cpu_profile_gives_any_experiment_the_recipe_and_keeps_its_values(ex
     assert cpu.ssl == paper.ssl
 
 
+def test_the_cpu_profile_takes_its_weight_decay_from_the_task():
+    """Bounce's recipe decays the weights (AdamW), Find's and Baoding's do not (plain Adam)."""
+    agent = Agent(("prop",), P, A)
+    built = {}
+    for exp in ("bounce_ppo", "bounce_fd", "find_ppo", "find_fd", "baoding_fd_mem"):
+        cfg = compose_cfg([f"+exp={exp}", "+profile=cpu"])
+        check_config(cfg)
+        optimizer = make_optimizer(cfg, agent)
+        built[exp] = (type(optimizer).__name__, optimizer.param_groups[0]["weight_decay"])
+    assert built == {
+        "bounce_ppo": ("AdamW", 3.0),
+        "bounce_fd": ("AdamW", 3.0),
+        "find_ppo": ("Adam", 0.0),
+        "find_fd": ("Adam", 0.0),
+        "baoding_fd_mem": ("Adam", 0.0),
+    }
+    assert compose_cfg(["+exp=bounce_ppo"]).agent.weight_decay == 0.0  # the paper's: none
+    off = compose_cfg(["+exp=bounce_ppo", "+profile=cpu", "agent.weight_decay=0"])
+    assert isinstance(make_optimizer(off, agent), torch.optim.Adam)  # the command line wins
+    find = compose_cfg(["+exp=find_ppo", "+profile=cpu", "env.cpu_recipe.weight_decay=1.0"])
+    assert make_optimizer(find, agent).param_groups[0]["weight_decay"] == 1.0
+
+
 def test_the_cpu_profile_lengthens_only_rollouts_under_32_steps(tmp_path, capsys):
     for exp, paper, recipe in (("bounce_ppo", 16, 32), ("find_ppo", 32, 32), ("find_fd", 64, 64)):
         cfg = compose_cfg([f"+exp={exp}", "+profile=cpu"])
