@@ -69,6 +69,7 @@ from roto_trl.trainers.builders import (
     make_std_ceiling,
     make_train_env,
     weight_decay,
+    weight_decay_parts,
 )
 from roto_trl.trainers.checkpoint import BEST, LATEST, load_checkpoint, save_checkpoint
 from roto_trl.trainers.errors import NonFiniteError, RunInUse, TrainingInterrupted, WriteError
@@ -123,6 +124,7 @@ def check_config(cfg: DictConfig) -> None:
     checked_decay(a.get("policy_ema_decay"))
     adam_betas(a.get("adam_betas", ADAM_BETAS))
     weight_decay(a.get("weight_decay"))
+    weight_decay_parts(a.get("weight_decay_parts"))
     checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES))
     advantage_norm_scope(a.get("normalize_advantage"))
     policy_distribution_kwargs(  # runs from before the options: the defaults

@@ -494,6 +494,36 @@ def test_weight_decay_shrinks_the_weight_matrices_by_lr_times_decay_and_nothing_
             check_config(compose_cfg(["+exp=bounce_ppo", f"agent.weight_decay={bad}"]))
 
 
+def test_weight_decay_parts_limit_the_decay_to_the_named_parts_of_the_agent():
+    agent = Agent(("prop",), P, A, shared_encoder=False, critic_encoder_sizes=[8])
+    only_head = ["agent.weight_decay=0.5", "agent.lr=0.01", "agent.weight_decay_parts=[policy_head]"]
+    optimizer = make_optimizer(compose_cfg(["+exp=bounce_ppo", *only_head]), agent)
+    named = dict(agent.named_parameters())
+    before = {name: p.detach().clone() for name, p in named.items()}
+    for p in agent.parameters():  # a zero gradient: only the decay moves
+        p.grad = torch.zeros_like(p)
+    optimizer.step()
+    shrunk = [name for name, p in named.items() if not torch.equal(p.detach(), before[name])]
+    assert shrunk and all(name.startswith("policy_head.") for name in shrunk)
+    for name in shrunk:  # every policy-head matrix by lr * decay, nothing else anywhere
+        torch.testing.assert_close(named[name].detach(), before[name] * (1 - 0.01 * 0.5), msg=name)
+    assert len(shrunk) == sum(p.dim() >= 2 for p in agent.policy_head.parameters())
+    assert sum(len(g["params"]) for g in optimizer.param_groups) == len(named)  # each once
+    two = make_optimizer(
+        compose_cfg(
+            ["+exp=bounce_ppo", "agent.weight_decay=0.5", "agent.weight_decay_parts=[encoder,value_encoder]"]
+        ),
+        agent,
+    )
+    matrices = [p for part in (agent.encoder, agent.value_encoder) for p in part.parameters() if p.dim() >= 2]
+    assert {id(p) for p in two.param_groups[0]["params"]} == {id(p) for p in matrices}
+    for bad in ("[]", "[critic]", "policy_head", "[policy_head,7]"):
+        with pytest.raises(
+            ValueError, match=r"agent\.weight_decay_parts must be a non-empty list of encoder"
+        ):
+            check_config(compose_cfg(["+exp=bounce_ppo", f"agent.weight_decay_parts={bad}"]))
+
+
 def test_the_forward_model_learns_from_the_action_the_env_applied():
     from roto_trl.trainers.builders import agent_for_env, make_aux_update, make_collector, make_train_env
 

@@ -8,6 +8,7 @@ dict a checkpoint stores.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 from omegaconf import DictConfig, OmegaConf
@@ -291,6 +292,23 @@ def weight_decay(value) -> float:
     return non_negative_or_off("agent.weight_decay", value, example="1.0")
 
 
+DECAYABLE_PARTS = ("encoder", "policy_head", "value_head", "value_encoder")
+
+
+def weight_decay_parts(value) -> tuple[str, ...]:
+    """``agent.weight_decay_parts``: the agent's parts whose weight matrices decay (None: all of
+    ``DECAYABLE_PARTS``), or a one-line error naming the fix."""
+    if value is None:
+        return DECAYABLE_PARTS
+    parts = tuple(value) if isinstance(value, Sequence) and not isinstance(value, str) else ()
+    if not parts or any(part not in DECAYABLE_PARTS for part in parts):
+        raise ValueError(
+            f"agent.weight_decay_parts must be a non-empty list of {', '.join(DECAYABLE_PARTS)} "
+            f"(null: all), e.g. [policy_head], got {value!r}"
+        )
+    return parts
+
+
 def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     """The PPO optimiser: one Adam over encoder + policy + value (the SSL gradient reaches the
     encoder through the same backward, see ``roto_trl.trainers.auxiliary``).
@@ -311,7 +329,9 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
 
     ``agent.weight_decay`` (default 0, off) > 0 makes it AdamW: after each step every weight
     matrix (not the biases, LayerNorm gains or the log-std) shrinks by ``lr * weight_decay`` of
-    itself, against the weights' growth over a run. The decay is scaled by the learning rate,
+    itself, against the weights' growth over a run; ``agent.weight_decay_parts`` (default null:
+    all) limits it to some of the agent's parts (e.g. ``[policy_head]``; with the shared encoder
+    there is no ``value_encoder``). The decay is scaled by the learning rate,
     which the KL rule holds at a few 1e-5 on Bounce, so useful values are 1-3 (measured there),
     not the usual 0.01. On Find both 1 and 3 lowered the final policies, so ``+profile=cpu``
     takes it from the task (``env.cpu_recipe.weight_decay``: 3.0 on Bounce, off on Find and
@@ -329,9 +349,17 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     networks = [p for p in agent.parameters() if p is not log_std]
     groups = [{"params": networks}]  # without decay one group, as checkpoints from before it hold
     if decay > 0.0:
+        parts = weight_decay_parts(a.get("weight_decay_parts"))  # older runs lack the key: all
+        decayed = {
+            id(p)
+            for part in parts
+            if hasattr(agent, part)
+            for p in getattr(agent, part).parameters()
+            if p.dim() >= 2
+        }
         groups = [
-            {"params": [p for p in networks if p.dim() >= 2], "weight_decay": decay},
-            {"params": [p for p in networks if p.dim() < 2], "weight_decay": 0.0},
+            {"params": [p for p in networks if id(p) in decayed], "weight_decay": decay},
+            {"params": [p for p in networks if id(p) not in decayed], "weight_decay": 0.0},
         ]
     if fixed_log_std:
         groups.append({"params": [log_std], "kl_adaptive": False, "weight_decay": 0.0})
