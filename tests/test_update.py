@@ -24,6 +24,7 @@ from roto_trl.trainers.builders import (
     apply_rollout_floor,
     gae_horizon,
     make_advantage,
+    make_eval_env,
     make_lr_schedule,
     make_mean_bound_loss,
     make_optimizer,
@@ -249,6 +250,27 @@ def test_the_cpu_profile_takes_its_weight_decay_from_the_task():
     assert isinstance(make_optimizer(off, agent), torch.optim.Adam)  # the command line wins
     find = compose_cfg(["+exp=find_ppo", "+profile=cpu", "env.cpu_recipe.weight_decay=1.0"])
     assert make_optimizer(find, agent).param_groups[0]["weight_decay"] == 1.0
+
+
+def test_the_cpu_profile_takes_its_evaluation_worlds_from_the_task():
+    """Find's recipe evaluates on 128 worlds (its 0/1 metric needs them), Bounce's and Baoding's on 32."""
+    worlds = {}
+    for exp in ("bounce_ppo", "bounce_fd", "find_ppo", "find_fd", "baoding_fd_mem"):
+        cfg = compose_cfg([f"+exp={exp}", "+profile=cpu", "+env.overrides.num_threads=1"])
+        check_config(cfg)
+        worlds[exp] = cfg.eval.num_envs
+    assert worlds == {
+        "bounce_ppo": 32,
+        "bounce_fd": 32,
+        "find_ppo": 128,
+        "find_fd": 128,
+        "baoding_fd_mem": 32,
+    }
+    find = compose_cfg(["+exp=find_ppo", "+profile=cpu", "+env.overrides.num_threads=1"])
+    assert make_eval_env(find).batch_size == torch.Size([128])
+    assert compose_cfg(["+exp=find_ppo"]).eval.num_envs == 100  # the paper's exps: train.yaml's
+    wins = compose_cfg(["+exp=find_ppo", "+profile=cpu", "eval.num_envs=64"])
+    assert wins.eval.num_envs == 64  # the command line wins
 
 
 def test_the_cpu_profile_lengthens_only_rollouts_under_32_steps(tmp_path, capsys):
