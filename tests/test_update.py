@@ -267,7 +267,9 @@ def test_the_cpu_profile_takes_its_evaluation_worlds_from_the_task():
         "baoding_fd_mem": 32,
     }
     find = compose_cfg(["+exp=find_ppo", "+profile=cpu", "+env.overrides.num_threads=1"])
-    assert make_eval_env(find).batch_size == torch.Size([128])
+    env = make_eval_env(find)
+    assert env.batch_size == torch.Size([128])
+    env.close()
     assert compose_cfg(["+exp=find_ppo"]).eval.num_envs == 100  # the paper's exps: train.yaml's
     wins = compose_cfg(["+exp=find_ppo", "+profile=cpu", "eval.num_envs=64"])
     assert wins.eval.num_envs == 64  # the command line wins
