@@ -229,50 +229,34 @@ def test_the_cpu_profile_gives_any_experiment_the_recipe_and_keeps_its_values(ex
     assert cpu.ssl == paper.ssl
 
 
-def test_the_cpu_profile_takes_its_weight_decay_from_the_task():
-    """Bounce's recipe decays the weights (AdamW), Find's and Baoding's do not (plain Adam)."""
+def test_the_cpu_profile_takes_its_per_task_settings_from_the_task():
+    """Bounce's recipe decays the weights (AdamW), Find's and Baoding's do not (plain Adam); Find's
+    evaluates on 128 worlds (its 0/1 metric needs them), Bounce's and Baoding's on 32."""
     agent = Agent(("prop",), P, A)
     built = {}
     for exp in ("bounce_ppo", "bounce_fd", "find_ppo", "find_fd", "baoding_fd_mem"):
         cfg = compose_cfg([f"+exp={exp}", "+profile=cpu"])
         check_config(cfg)
         optimizer = make_optimizer(cfg, agent)
-        built[exp] = (type(optimizer).__name__, optimizer.param_groups[0]["weight_decay"])
+        built[exp] = (type(optimizer).__name__, optimizer.param_groups[0]["weight_decay"], cfg.eval.num_envs)
     assert built == {
-        "bounce_ppo": ("AdamW", 3.0),
-        "bounce_fd": ("AdamW", 3.0),
-        "find_ppo": ("Adam", 0.0),
-        "find_fd": ("Adam", 0.0),
-        "baoding_fd_mem": ("Adam", 0.0),
+        "bounce_ppo": ("AdamW", 3.0, 32),
+        "bounce_fd": ("AdamW", 3.0, 32),
+        "find_ppo": ("Adam", 0.0, 128),
+        "find_fd": ("Adam", 0.0, 128),
+        "baoding_fd_mem": ("Adam", 0.0, 32),
     }
-    assert compose_cfg(["+exp=bounce_ppo"]).agent.weight_decay == 0.0  # the paper's: none
+    paper = compose_cfg(["+exp=bounce_ppo"])
+    assert (paper.agent.weight_decay, paper.eval.num_envs) == (0.0, 100)  # the paper's: train.yaml's
     off = compose_cfg(["+exp=bounce_ppo", "+profile=cpu", "agent.weight_decay=0"])
     assert isinstance(make_optimizer(off, agent), torch.optim.Adam)  # the command line wins
     find = compose_cfg(["+exp=find_ppo", "+profile=cpu", "env.cpu_recipe.weight_decay=1.0"])
     assert make_optimizer(find, agent).param_groups[0]["weight_decay"] == 1.0
-
-
-def test_the_cpu_profile_takes_its_evaluation_worlds_from_the_task():
-    """Find's recipe evaluates on 128 worlds (its 0/1 metric needs them), Bounce's and Baoding's on 32."""
-    worlds = {}
-    for exp in ("bounce_ppo", "bounce_fd", "find_ppo", "find_fd", "baoding_fd_mem"):
-        cfg = compose_cfg([f"+exp={exp}", "+profile=cpu", "+env.overrides.num_threads=1"])
-        check_config(cfg)
-        worlds[exp] = cfg.eval.num_envs
-    assert worlds == {
-        "bounce_ppo": 32,
-        "bounce_fd": 32,
-        "find_ppo": 128,
-        "find_fd": 128,
-        "baoding_fd_mem": 32,
-    }
+    assert compose_cfg(["+exp=find_ppo", "+profile=cpu", "eval.num_envs=64"]).eval.num_envs == 64
     find = compose_cfg(["+exp=find_ppo", "+profile=cpu", "+env.overrides.num_threads=1"])
     env = make_eval_env(find)
     assert env.batch_size == torch.Size([128])
     env.close()
-    assert compose_cfg(["+exp=find_ppo"]).eval.num_envs == 100  # the paper's exps: train.yaml's
-    wins = compose_cfg(["+exp=find_ppo", "+profile=cpu", "eval.num_envs=64"])
-    assert wins.eval.num_envs == 64  # the command line wins
 
 
 def test_the_cpu_profile_lengthens_only_rollouts_under_32_steps(tmp_path, capsys):
