@@ -13,7 +13,9 @@ evaluations; ``applied_mean``: the mean of the action the env applies, E[clip(sa
 ``gaussian_mean``: the Gaussian's mean, skrl's and the authors' deterministic action;
 ``stochastic``: samples of its Gaussian, seeded, as the agent acts in training), ``weights``
 (``average``, the default: the moving average of the policy's weights when the run kept one,
-``agent.policy_ema_decay`` > 0, as its training evaluations; ``trained``: the weights PPO trained).
+``agent.policy_ema_decay`` > 0, as its training evaluations; ``trained``: the weights PPO trained),
+``noise_scale`` (with ``policy=stochastic``: the policy's standard deviation times this factor,
+default 1; e.g. 0.25 and 0.5 read a checkpoint between its controller and its sampled policy).
 
 Physical metrics (per task, :meth:`~roto_trl.envs.robot_env.RobotTaskEnv.physical_metrics`):
 Find, seconds to reach each tolerance and the fraction of episodes that reached it; Bounce,
@@ -45,6 +47,7 @@ DEFAULTS = {
     "out": None,
     "policy": "deterministic",
     "weights": "average",
+    "noise_scale": 1.0,
 }
 
 
@@ -52,6 +55,8 @@ def print_result(result: dict[str, Any]) -> None:
     policy = result.get("policy", "deterministic")
     frames = result["trained_frames"]
     weights = "averaged weights" if result.get("weights") == "average" else "trained weights"
+    if "noise_scale" in result:
+        policy = f"{policy} (std x {result['noise_scale']:g})"
     print(f"{result['exp_name']} ({result['task']}), {frames:,} training frames, {policy} policy, {weights}")
     episodes = result["episodes"]
     print(f"  {'return':<22} {result['return_mean']:.3f} ± {result['return_std']:.3f} ({episodes} episodes)")
@@ -80,6 +85,7 @@ def main(argv: list[str] | None = None) -> Path:
             None if cfg.out is None else Path(str(cfg.out)),
             str(cfg.policy),
             str(cfg.weights),
+            cfg.noise_scale,
         )
     except (ValueError, RuntimeError, FileNotFoundError) as err:  # bad input: one line, no traceback
         raise SystemExit(f"evaluate: {err}") from None

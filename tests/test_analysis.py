@@ -152,6 +152,42 @@ def test_evaluate_can_act_with_the_policys_seeded_samples(runs, tmp_path):
         evaluate.main([f"run={runs['ppo0']}", "policy=random"])
 
 
+def test_evaluate_scales_the_sampled_policys_noise(runs, tmp_path):
+    def result(name, *extra):
+        args = [
+            f"run={runs['ppo0']}",
+            "episodes=4",
+            "seed=3",
+            f"out={tmp_path / name}",
+            "policy=stochastic",
+            *extra,
+        ]
+        return json.loads(evaluate.main(args).read_text())
+
+    own, unit = result("s.json"), result("s1.json", "noise_scale=1")
+    assert own["return_mean"] == unit["return_mean"] and "noise_scale" not in own
+    half = result("h.json", "noise_scale=0.5")
+    assert half["noise_scale"] == 0.5 and half["return_mean"] != own["return_mean"]
+    # samples with a vanishing std are the Gaussian's mean, clipped by the env
+    faint = result("f.json", "noise_scale=1e-9")
+    mean = json.loads(
+        evaluate.main(
+            [
+                f"run={runs['ppo0']}",
+                "episodes=4",
+                "seed=3",
+                f"out={tmp_path / 'g.json'}",
+                "policy=gaussian_mean",
+            ]
+        ).read_text()
+    )
+    assert faint["return_mean"] == pytest.approx(mean["return_mean"], rel=1e-4)
+    with pytest.raises(SystemExit, match="noise_scale scales the samples of policy=stochastic"):
+        evaluate.main([f"run={runs['ppo0']}", "noise_scale=0.5"])
+    with pytest.raises(SystemExit, match="noise_scale must be a number > 0"):
+        evaluate.main([f"run={runs['ppo0']}", "policy=stochastic", "noise_scale=0"])
+
+
 def test_evaluate_rejects_missing_and_foreign_checkpoints(runs, tmp_path):
     with pytest.raises(SystemExit, match=r"no config\.yaml"):
         evaluate.main([f"run={tmp_path}"])

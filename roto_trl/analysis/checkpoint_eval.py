@@ -5,9 +5,11 @@ Used by ``evaluate.py``, by ``train.py`` at the end of a run and by the analyses
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Any
 
+import torch
 from omegaconf import DictConfig, OmegaConf
 
 from roto_trl.analysis.report import write_index
@@ -31,6 +33,18 @@ def resolve_policy(policy: str, state: dict[str, Any]) -> str:
     if policy == "deterministic":
         return str(state["config"]["agent"].get("deterministic_action", DEFAULT_DETERMINISTIC_ACTION))
     return policy
+
+
+def checked_noise_scale(noise_scale, policy: str) -> float:
+    """``noise_scale`` as a float: > 0, and other than 1 only with ``policy=stochastic`` (the
+    deterministic actions have no noise to scale); a one-line ``ValueError`` naming the fix."""
+    if isinstance(noise_scale, bool) or not isinstance(noise_scale, (int, float)) or not noise_scale > 0:
+        raise ValueError(f"noise_scale must be a number > 0 (1: the policy's own std), got {noise_scale!r}")
+    if noise_scale != 1 and policy != "stochastic":
+        raise ValueError(
+            f"noise_scale scales the samples of policy=stochastic, not policy={policy}; add policy=stochastic"
+        )
+    return float(noise_scale)
 
 
 def load_run(run_dir: Path, checkpoint: str = "best") -> tuple[DictConfig, dict[str, Any], Path]:
@@ -71,6 +85,7 @@ def evaluate_checkpoint(
     video: bool = False,
     policy: str = "deterministic",
     weights: str = "average",
+    noise_scale: float = 1.0,
 ) -> tuple[dict[str, Any], list]:
     """Evaluate a checkpoint's policy on ``episodes`` fresh worlds of its task.
 
@@ -80,11 +95,14 @@ def evaluate_checkpoint(
     ``stochastic`` (seeded samples of the policy's Gaussian, clipped by the env as in training).
     ``weights``: ``average`` (the moving average of the policy's weights when the run kept one, else
     its weights) or ``trained`` (see ``trainers.checkpoint.agent_from_checkpoint``).
+    ``noise_scale`` (``stochastic`` only): the policy's standard deviation times this factor, so
+    that one checkpoint can be read between its controller (-> 0) and its sampled policy (1).
 
     Returns the result (return mean/std, mean episode length, the encoder's latent rank, episode
     metric means, physical metrics) and, with ``video``, the RGB frames of the first episode.
     """
     policy = resolve_policy(policy, state)
+    noise_scale = checked_noise_scale(noise_scale, policy)
     run_cfg = OmegaConf.create(state["config"])
     run_cfg.device = "cpu"
     if policy in DETERMINISTIC_ACTIONS:
@@ -92,6 +110,9 @@ def evaluate_checkpoint(
     env = make_eval_env(run_cfg, episodes)
     try:
         agent = agent_from_checkpoint({**state, "config": OmegaConf.to_container(run_cfg)}, env, weights)
+        if noise_scale != 1:
+            with torch.no_grad():  # this evaluation's copy of the policy only
+                agent.policy_head.log_std.add_(math.log(noise_scale))
         base = env.base_env
         render = (lambda: base.render(0)) if video else None
         result = run_episodes(env, agent, seed, render=render, stochastic=policy == "stochastic")
@@ -105,6 +126,7 @@ def evaluate_checkpoint(
         "episodes": int(episodes),
         "seed": int(seed),
         "policy": policy,
+        **({"noise_scale": noise_scale} if noise_scale != 1 else {}),
         "weights": "average" if weights == "average" and POLICY_AVERAGE_KEY in state else "trained",
         "return_mean": float(result.returns.mean()),
         "return_std": float(result.returns.std(correction=0)),
@@ -125,6 +147,7 @@ def evaluate_run(
     out: Path | None = None,
     policy: str = "deterministic",
     weights: str = "average",
+    noise_scale: float = 1.0,
 ) -> Path:
     """Evaluate one checkpoint of a run, write ``eval.json`` (and the video), refresh ``index.md``."""
     run_dir = Path(run_dir)
@@ -133,7 +156,7 @@ def evaluate_run(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     seed = eval_seed(cfg) if seed is None else int(seed)
-    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video, policy, weights)
+    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video, policy, weights, noise_scale)
     summary = {"run_dir": str(run_dir.resolve()), "checkpoint": str(path.resolve()), **summary}
     if video:
         video_path = run_dir / "videos" / f"eval-{path.stem}-s{seed}.mp4"
