@@ -407,7 +407,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
                 losses["std_ceiling"] = std_ceiling.set_frames(frames)
             update_s = time.perf_counter() - t0
 
-            stats = rollout_stats(batch, ep_return, columns)
+            stats = rollout_stats(batch, ep_return, columns, env.base_env.physical_metrics)
             wall = wall_before + time.perf_counter() - start
             stats.update(losses)
             stats.update(

@@ -14,7 +14,7 @@ from tensordict import TensorDict
 
 from roto_trl import make_env
 from roto_trl.data.memory import AuxMemory
-from roto_trl.modules.agent import Agent
+from roto_trl.modules.agent import LATENT_KEY, Agent
 from roto_trl.objectives import PolicyMeanBoundLoss, ProximalFeatureLoss, TactileForwardDynamicsLoss
 from roto_trl.objectives.functional import excess_square, feature_drift
 from roto_trl.train import check_config, train
@@ -43,6 +43,7 @@ from roto_trl.trainers.ppo import (
     minibatch_keys,
     minibatch_loss,
     ppo_update,
+    rollout_stats,
     saturation,
     store_rollout,
 )
@@ -710,6 +711,30 @@ def test_effective_rank_by_hand():
 
 
 # ---------------------------------------------------------------------------- the proximal feature term
+
+
+def test_rollout_stats_give_the_training_episodes_physical_metrics():
+    find = make_env("find", 1).base_env  # 5 s episodes: an unreached tolerance reads 5.0
+    done = torch.tensor([[False, True], [False, False], [True, False]])  # worlds 0 and 2 end
+    find_time = torch.full((3, 2, 3), 5.0)
+    find_time[0, 1] = torch.tensor([1.5, 4.0, 5.0])  # world 0 reached 3 cm and 1 cm
+    find_time[2, 0] = torch.tensor([2.5, 5.0, 5.0])  # world 2 reached 3 cm only
+    nxt = {
+        "reward": torch.ones(3, 2, 1),
+        "done": done.unsqueeze(-1),
+        "reward_terms": {"dist": torch.ones(3, 2)},
+        "object_distance": torch.full((3, 2, 1), 0.1),
+        "find_time": find_time,
+    }
+    batch = TensorDict(
+        {"next": nxt, "loc": torch.zeros(3, 2, 9), LATENT_KEY: torch.randn(3, 2, 4)},
+        [3, 2],
+    )
+    stats = rollout_stats(batch, torch.zeros(3), find.metric_columns(), find.physical_metrics)
+    assert stats["episodes"] == 2 and stats["episode_return"] == 1.5  # returns 2 and 1
+    assert stats["episode/reached_3cm"] == 1.0 and stats["episode/reached_1cm"] == 0.5
+    assert stats["episode/reached_0.05cm"] == 0.0
+    assert stats["episode/find_time_3cm"] == pytest.approx(2.0)
 
 
 def test_feature_drift_by_hand():

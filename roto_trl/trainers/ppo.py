@@ -250,8 +250,12 @@ def latent_rank(z: torch.Tensor) -> float:
     return effective_rank(z[:: max(1, z.shape[0] // RANK_STATES)])
 
 
-def rollout_stats(batch: TensorDictBase, ep_return: torch.Tensor, columns) -> dict[str, float]:
-    """Per-step reward terms, the return and metrics of episodes that ended in ``batch``, and the
+def rollout_stats(
+    batch: TensorDictBase, ep_return: torch.Tensor, columns, physical_metrics
+) -> dict[str, float]:
+    """Per-step reward terms, the return and metrics of episodes that ended in ``batch`` with the
+    task's physical metrics of those (sampled-policy) episodes (``physical_metrics``, the task
+    env's: ``episode/reached_3cm``, ``episode/bounces_per_10s``, ... beside the evaluations'), and the
     fraction of the policy mean's entries |loc| > 0.9 on the collected states (``mean_saturation``,
     read from the ``loc`` the policy wrote while acting: no extra forward pass), and the effective
     rank of the policy encoder's latents on up to ``RANK_STATES`` of those states (``latent_rank``,
@@ -277,6 +281,7 @@ def rollout_stats(batch: TensorDictBase, ep_return: torch.Tensor, columns) -> di
         ended_returns = torch.cat(returns)
         stats["episode_return"] = float(ended_returns.mean())
         stats["episodes"] = float(ended_returns.numel())
-        for key, i, name in columns:
-            stats[f"episode/{name}"] = float(nxt[key][..., i][done].float().mean())
+        final = {name: nxt[key][..., i][done] for key, i, name in columns}
+        stats.update({f"episode/{name}": float(v.float().mean()) for name, v in final.items()})
+        stats.update({f"episode/{name}": v for name, v in physical_metrics(final).items()})
     return stats
