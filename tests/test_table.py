@@ -176,6 +176,15 @@ def test_stability_rows_by_hand(tmp_path, capsys):
     assert (row["checkpoint_value"], row["checkpoint_episodes"]) == ("9.5", "100")
     printed = capsys.readouterr().out
     assert "0.70 (fell back) | 1.00 / 5.00 |" in printed and "episode/bounces: 1.00 / 5.00 / –" in printed
+    # a log with the headline metric of the training episodes reads that, in the evaluation's unit
+    (run / "train.csv").write_text(
+        "frames,episodes,episode/bounces,episode/bounces_per_10s\n50,2,1,1.5\n200,2,8,12\n"
+    )
+    analyse.main(["stability", str(run), "--out", str(out), "--at", "100,200"])
+    with (out / "stability.csv").open(newline="") as handle:
+        (row,) = list(csv.DictReader(handle))
+    assert (float(row["training_100"]), float(row["training_200"])) == (1.5, 6.75)
+    assert "episode/bounces_per_10s: 1.50 / 6.75" in capsys.readouterr().out
 
 
 def test_training_windows_by_hand():

@@ -8,8 +8,10 @@ per-iteration median per-minibatch KL (``kl_k3_median``, skrl's estimator) and c
 best checkpoint for the results table) adds its headline value and episode count.
 
 The training episodes (the stochastic policy) give a second view at chosen frame marks: the mean
-of the task's episode metric (``TRAINING_METRIC``) over the episodes that ended in the
-``TRAINING_WINDOW`` frames before each mark, weighted by how many ended in each iteration; and
+of the evaluation's headline metric (``episode/<headline>`` in ``train.csv``; in runs logged
+before training wrote it, the task's episode metric ``TRAINING_METRIC``) over the episodes that
+ended in the ``TRAINING_WINDOW`` frames before each mark, weighted by how many ended in each
+iteration; and
 the same mean before the best and before the final evaluation, which tells a policy that fell
 back (both views drop) from a deterministic controller that fell back while the policy PPO
 trains held (the training episodes do not drop).
@@ -28,7 +30,7 @@ from roto_trl.analysis.table import frames_label
 from roto_trl.envs.factory import TASKS
 
 HOLD_FRACTION = 0.8
-TRAINING_METRIC = {
+TRAINING_METRIC = {  # runs whose train.csv lacks episode/<headline>
     "bounce": "episode/bounces",
     "find": "episode/find_time_3cm",
     "baoding": "episode/rotations",
@@ -113,7 +115,7 @@ def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
         kl_median=_median(train.get("kl_k3_median")),
         clip_median=_median(train.get("clip_fraction_median")),
         frames_per_s=_median(train.get("fps")),
-        training_metric=TRAINING_METRIC[run.task],
+        training_metric=f"episode/{metric}" if f"episode/{metric}" in train else TRAINING_METRIC[run.task],
     )
     if row.training_metric in train and "episodes" in train:
         frames, values, episodes = (
