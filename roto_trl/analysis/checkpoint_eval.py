@@ -96,7 +96,8 @@ def evaluate_checkpoint(
     ``weights``: ``average`` (the moving average of the policy's weights when the run kept one, else
     its weights) or ``trained`` (see ``trainers.checkpoint.agent_from_checkpoint``).
     ``noise_scale`` (``stochastic`` only): the policy's standard deviation times this factor, so
-    that one checkpoint can be read between its controller (-> 0) and its sampled policy (1).
+    that one checkpoint can be read between its controller (-> 0) and its sampled policy (1);
+    the scaled log-std keeps training's clamp (``LOG_STD_RANGE``: std at most e^2).
 
     Returns the result (return mean/std, mean episode length, the encoder's latent rank, episode
     metric means, physical metrics) and, with ``video``, the RGB frames of the first episode.

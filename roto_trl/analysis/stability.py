@@ -11,10 +11,9 @@ The training episodes (the stochastic policy) give a second view at chosen frame
 of the evaluation's headline metric (``episode/<headline>`` in ``train.csv``; in runs logged
 before training wrote it, the task's episode metric ``TRAINING_METRIC``) over the episodes that
 ended in the ``TRAINING_WINDOW`` frames before each mark, weighted by how many ended in each
-iteration; and
-the same mean before the best and before the final evaluation, which tells a policy that fell
-back (both views drop) from a deterministic controller that fell back while the policy PPO
-trains held (the training episodes do not drop).
+iteration; and the same mean before the best and before the final evaluation, which tells a
+policy that fell back (both views drop) from a deterministic controller that fell back while the
+policy PPO trains held (the training episodes do not drop).
 """
 
 from __future__ import annotations
