@@ -710,9 +710,6 @@ def test_effective_rank_by_hand():
     assert effective_rank(torch.ones(1, 8)) == 0.0 and effective_rank(torch.ones(5, 8)) == 0.0  # no variation
 
 
-# ---------------------------------------------------------------------------- the proximal feature term
-
-
 def test_rollout_stats_give_the_training_episodes_physical_metrics():
     find = make_env("find", 1).base_env  # 5 s episodes: an unreached tolerance reads 5.0
     done = torch.tensor([[False, True], [False, False], [True, False]])  # worlds 0 and 2 end
@@ -735,6 +732,9 @@ def test_rollout_stats_give_the_training_episodes_physical_metrics():
     assert stats["episode/reached_3cm"] == 1.0 and stats["episode/reached_1cm"] == 0.5
     assert stats["episode/reached_0.05cm"] == 0.0
     assert stats["episode/find_time_3cm"] == pytest.approx(2.0)
+
+
+# ---------------------------------------------------------------------------- the proximal feature term
 
 
 def test_feature_drift_by_hand():

@@ -18,6 +18,7 @@ from roto_trl.trainers.builders import eval_seed, make_eval_env
 from roto_trl.trainers.checkpoint import BEST, LATEST, agent_from_checkpoint, load_checkpoint
 from roto_trl.trainers.evaluation import run_episodes
 from roto_trl.trainers.policy_average import POLICY_AVERAGE_KEY
+from roto_trl.utils.cli import is_number
 from roto_trl.utils.video import write_mp4
 
 NAMED = {"best": BEST, "latest": LATEST}
@@ -38,7 +39,7 @@ def resolve_policy(policy: str, state: dict[str, Any]) -> str:
 def checked_noise_scale(noise_scale, policy: str) -> float:
     """``noise_scale`` as a float: > 0, and other than 1 only with ``policy=stochastic`` (the
     deterministic actions have no noise to scale); a one-line ``ValueError`` naming the fix."""
-    if isinstance(noise_scale, bool) or not isinstance(noise_scale, (int, float)) or not noise_scale > 0:
+    if not (is_number(noise_scale) and noise_scale > 0):
         raise ValueError(f"noise_scale must be a number > 0 (1: the policy's own std), got {noise_scale!r}")
     if noise_scale != 1 and policy != "stochastic":
         raise ValueError(
