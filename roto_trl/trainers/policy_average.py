@@ -33,7 +33,7 @@ def checked_decay(decay) -> float:
     if not (is_number(decay) and 0.0 <= float(decay) < 1.0):
         raise ValueError(
             f"agent.policy_ema_decay must be a number in [0, 1) (0: off; 0.9: about the last 10 "
-            f"updates), got {decay!r}"
+            f"iterations), got {decay!r}"
         )
     return float(decay)
 
@@ -59,12 +59,13 @@ def copy_into(params: dict[str, torch.Tensor], weights: dict[str, torch.Tensor])
 
 
 class PolicyAverage:
-    """Keeps ``average <- decay * average + (1 - decay) * weights`` after every PPO update.
+    """Keeps ``average <- decay * average + (1 - decay) * weights`` after every iteration's PPO
+    update (all its epochs and minibatches), not after each minibatch step.
 
     Args:
         agent: the :class:`~roto_trl.modules.agent.Agent` being trained.
-        decay: in (0, 1): the weight of the old average per update; the average spans about
-            ``1 / (1 - decay)`` updates (0.95: 20 iterations).
+        decay: in (0, 1): the weight of the old average per iteration; the average spans about
+            ``1 / (1 - decay)`` iterations (0.95: 20).
     """
 
     def __init__(self, agent: torch.nn.Module, decay: float) -> None:
