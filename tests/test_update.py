@@ -36,7 +36,7 @@ from roto_trl.trainers.builders import (
 )
 from roto_trl.trainers.loggers import read_csv
 from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3, remaining
-from roto_trl.trainers.policy_average import PolicyAverage, policy_parameters
+from roto_trl.trainers.policy_average import PolicyAverage, policy_parameters, span_note
 from roto_trl.trainers.ppo import (
     effective_rank,
     estimate_advantages,
@@ -649,6 +649,17 @@ def test_policy_average_by_hand_and_swapped_in_only_inside_the_block():
     for bad in (1.0, -0.1, "'0.9'"):
         with pytest.raises(ValueError, match="policy_ema_decay must be a number in"):
             check_config(compose_cfg(["+exp=bounce_ppo", f"agent.policy_ema_decay={bad}"]))
+
+
+def test_span_note_flags_an_average_longer_than_half_the_run():
+    # 0.998 spans 1 / 0.002 = 500 iterations; a 2 M-frame Find run has 2e6 // 16384 = 122
+    note = span_note(0.998, 122)
+    assert "about 500 iterations" in note and "has 122" in note
+    assert "agent.policy_ema_decay=0.92" in note  # 1 - 10 / 122 = 0.918
+    assert span_note(0.9, 122) is None  # 10 iterations fit
+    assert span_note(0.9, 20) is None  # 10 iterations, exactly half the run
+    assert "needs no average: agent.policy_ema_decay=0" in span_note(0.9, 19)  # too short for 1 - 10 / 19
+    assert span_note(0.0, 1) is None  # off
 
 
 # ---------------------------------------------------------------------------- the std ceiling

@@ -33,7 +33,7 @@ from roto_trl.objectives import (
 )
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.lr_schedule import KLAdaptiveLR, LinearDecayLR
-from roto_trl.trainers.policy_average import PolicyAverage, checked_decay
+from roto_trl.trainers.policy_average import PolicyAverage, checked_decay, span_note
 from roto_trl.trainers.std_ceiling import DEFAULT_FRAMES, StdCeiling, checked_std_ceiling
 from roto_trl.utils.cli import non_negative_or_off, number_pair, positive_int_or_null
 
@@ -171,7 +171,11 @@ def make_policy_terms(cfg, agent: Agent) -> tuple[LossModule, ...]:
 def make_policy_average(cfg, agent: Agent) -> PolicyAverage | None:
     """The moving average of the policy's weights that evaluations use (``agent.policy_ema_decay``
     > 0), or None (the default, 0: evaluations use the current weights)."""
-    decay = checked_decay(_cfg(cfg).agent.get("policy_ema_decay"))  # older runs lack the key: off
+    cfg = _cfg(cfg)
+    decay = checked_decay(cfg.agent.get("policy_ema_decay"))  # older runs lack the key: off
+    note = span_note(decay, cfg.total_frames // (cfg.env.num_envs * cfg.agent.rollout_len))
+    if note is not None:
+        print(note)
     return PolicyAverage(agent, decay) if decay > 0 else None
 
 

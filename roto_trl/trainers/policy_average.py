@@ -38,6 +38,24 @@ def checked_decay(decay) -> float:
     return float(decay)
 
 
+def span_note(decay: float, iterations: int) -> str | None:
+    """A one-line note when the average of ``decay`` spans more than half of a run of
+    ``iterations`` iterations (its evaluations would mostly see the initial weights), naming the
+    decay that spans a tenth of the run; None when the span fits (or there is no average)."""
+    span = round(1.0 / (1.0 - decay), 6) if decay > 0.0 else 0.0  # 1 / (1 - 0.9) is 10.000000000000002
+    if span <= iterations / 2:
+        return None
+    fix = (
+        f"agent.policy_ema_decay={1.0 - 10.0 / iterations:.2f} averages about a tenth of the run"
+        if iterations >= 20
+        else "a run this short needs no average: agent.policy_ema_decay=0"
+    )
+    return (
+        f"agent.policy_ema_decay={decay:g} averages about {span:.0f} iterations but "
+        f"this run has {iterations}: its evaluations mostly see the initial weights ({fix})"
+    )
+
+
 def policy_parameters(agent: torch.nn.Module) -> dict[str, torch.nn.Parameter]:
     """The policy's parameters by their names in ``agent.state_dict()``: encoder and head."""
     return {name: p for name, p in agent.named_parameters() if name.startswith(POLICY_PREFIXES)}
