@@ -34,6 +34,7 @@ from roto_trl.objectives import (
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.lr_schedule import KLAdaptiveLR, LinearDecayLR
 from roto_trl.trainers.policy_average import PolicyAverage, checked_decay, span_note
+from roto_trl.trainers.schedule import frames_per_iteration
 from roto_trl.trainers.std_ceiling import DEFAULT_FRAMES, StdCeiling, checked_std_ceiling
 from roto_trl.utils.cli import non_negative_or_off, number_pair, positive_int_or_null
 
@@ -173,7 +174,7 @@ def make_policy_average(cfg, agent: Agent) -> PolicyAverage | None:
     > 0), or None (the default, 0: evaluations use the current weights)."""
     cfg = _cfg(cfg)
     decay = checked_decay(cfg.agent.get("policy_ema_decay"))  # older runs lack the key: off
-    note = span_note(decay, cfg.total_frames // (cfg.env.num_envs * cfg.agent.rollout_len))
+    note = span_note(decay, int(cfg.total_frames) // frames_per_iteration(cfg))
     if note is not None:
         print(note)
     return PolicyAverage(agent, decay) if decay > 0 else None
@@ -260,7 +261,7 @@ def make_collector(cfg, env: TransformedEnv, agent: Agent) -> Collector:
     return Collector(
         env,
         agent.policy,
-        frames_per_batch=int(cfg.env.num_envs) * int(cfg.agent.rollout_len),
+        frames_per_batch=frames_per_iteration(cfg),
         total_frames=-1,
         device=cfg.device,
         auto_register_policy_transforms=False,  # the policy needs no transform the env lacks
@@ -270,7 +271,7 @@ def make_collector(cfg, env: TransformedEnv, agent: Agent) -> Collector:
 def make_rollout_buffer(cfg) -> TensorDictReplayBuffer:
     """The on-policy buffer: one rollout, sampled in ``minibatches`` disjoint minibatches per epoch."""
     cfg = _cfg(cfg)
-    frames = int(cfg.env.num_envs) * int(cfg.agent.rollout_len)
+    frames = frames_per_iteration(cfg)
     return TensorDictReplayBuffer(
         storage=LazyTensorStorage(frames, device=cfg.device),
         sampler=SamplerWithoutReplacement(),

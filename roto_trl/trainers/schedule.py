@@ -12,6 +12,11 @@ import time
 from omegaconf import DictConfig
 
 
+def frames_per_iteration(cfg: DictConfig) -> int:
+    """Frames one iteration collects: ``env.num_envs x agent.rollout_len``."""
+    return int(cfg.env.num_envs) * int(cfg.agent.rollout_len)
+
+
 def eval_every_frames(cfg: DictConfig) -> int:
     """Frames between evaluations, from ``eval.every_frames``.
 
@@ -19,16 +24,16 @@ def eval_every_frames(cfg: DictConfig) -> int:
     written for it fails with the fix instead of silently evaluating at another rate; a config
     saved by an older run (resumed) has no ``every_frames`` and is converted.
     """
-    frames_per_iteration = int(cfg.env.num_envs) * int(cfg.agent.rollout_len)
+    per_iteration = frames_per_iteration(cfg)
     interval = cfg.eval.get("interval", None)
     every = cfg.eval.get("every_frames", None)
     if interval is not None and every is None:
-        return int(interval) * frames_per_iteration
+        return int(interval) * per_iteration
     if interval is not None:
         raise ValueError(
             f"eval.interval (iterations) was replaced by eval.every_frames (frames); use "
-            f"eval.every_frames={int(interval) * frames_per_iteration} for eval.interval={interval} "
-            f"(env.num_envs x agent.rollout_len = {frames_per_iteration} frames per iteration)"
+            f"eval.every_frames={int(interval) * per_iteration} for eval.interval={interval} "
+            f"(env.num_envs x agent.rollout_len = {per_iteration} frames per iteration)"
         )
     if isinstance(every, bool) or not isinstance(every, int) or every < 1:
         raise ValueError(f"eval.every_frames must be a positive integer, got {every!r}")
