@@ -81,7 +81,13 @@ from roto_trl.trainers.ppo import minibatch_keys, ppo_update, rollout_stats, sto
 from roto_trl.trainers.progress import TrainingProgress
 from roto_trl.trainers.run_dir import finished_reason, resume_config, rewind
 from roto_trl.trainers.run_lock import RunLock
-from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due, evaluations_left
+from roto_trl.trainers.schedule import (
+    EvalClock,
+    eval_every_frames,
+    evaluation_due,
+    evaluations_left,
+    frames_per_iteration,
+)
 from roto_trl.trainers.std_ceiling import DEFAULT_FRAMES, checked_std_ceiling
 from roto_trl.trainers.threads import job_threads
 from roto_trl.utils.cli import is_number, positive_int_or_null
@@ -108,7 +114,7 @@ def check_config(cfg: DictConfig) -> None:
         if not isinstance(value, int) or value < 1:
             raise ValueError(f"{key} must be a positive integer, got {value!r}")
     eval_every_frames(cfg)  # a positive integer; the old eval.interval gets the equivalent value
-    if cfg.env.num_envs * cfg.agent.rollout_len < cfg.agent.minibatches:
+    if frames_per_iteration(cfg) < cfg.agent.minibatches:
         raise ValueError("agent.minibatches exceeds one rollout's frames (env.num_envs * agent.rollout_len)")
     limit = cfg.time_limit_minutes
     if limit is not None and not (is_number(limit) and limit > 0):
