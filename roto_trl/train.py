@@ -56,6 +56,7 @@ from roto_trl.trainers.builders import (
     compile_agent,
     eval_seed,
     gae_horizon,
+    log_std_lr,
     make_advantage,
     make_aux_update,
     make_collector,
@@ -131,6 +132,7 @@ def check_config(cfg: DictConfig) -> None:
     adam_betas(a.get("adam_betas", ADAM_BETAS))
     weight_decay(a.get("weight_decay"))
     weight_decay_parts(a.get("weight_decay_parts"))
+    log_std_lr(a)
     checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES))
     advantage_norm_scope(a.get("normalize_advantage"))
     policy_distribution_kwargs(  # runs from before the options: the defaults

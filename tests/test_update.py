@@ -464,6 +464,25 @@ def test_the_log_std_can_keep_the_fixed_rate_while_the_kl_rule_moves_the_rest():
     assert len(make_optimizer(compose_cfg(["+exp=bounce_ppo"]), agent).param_groups) == 1
 
 
+def test_the_log_std_can_have_a_rate_of_its_own_outside_the_kl_rule_and_annealed_from_it():
+    agent = Agent(("prop",), P, A)
+    cfg = compose_cfg(["+exp=bounce_ppo", "agent.lr_schedule=kl_adaptive", "agent.log_std_lr=1e-3"])
+    optimizer = make_optimizer(cfg, agent)
+    networks, log_std = optimizer.param_groups
+    assert log_std["params"] == [agent.policy_head.log_std] and log_std["kl_adaptive"] is False
+    assert (networks["lr"], log_std["lr"]) == (cfg.agent.lr, 1e-3)
+    make_lr_schedule(cfg, optimizer).step(0.001)  # KL under 0.008 / 2: x 1.5 for the networks only
+    assert (networks["lr"], log_std["lr"]) == (pytest.approx(cfg.agent.lr * 1.5), 1e-3)
+    # the annealed fixed rate takes each group from its own start: half way, half of each
+    fixed = ["+exp=bounce_ppo", "agent.log_std_lr=1e-3", "agent.anneal_step_size=true", "agent.lr=1e-4"]
+    optimizer = make_optimizer(compose_cfg(fixed), agent)
+    make_lr_schedule(compose_cfg(fixed), optimizer).set_progress(0.5)
+    assert [g["lr"] for g in optimizer.param_groups] == [pytest.approx(5e-5), pytest.approx(5e-4)]
+    for bad in ("0", "-1e-3", "fast"):
+        with pytest.raises(ValueError, match=r"agent\.log_std_lr must be a number > 0 or null"):
+            check_config(compose_cfg(["+exp=bounce_ppo", f"agent.log_std_lr={bad}"]))
+
+
 def test_adam_betas_from_the_config_torchs_by_default():
     agent = Agent(("prop",), P, A)
     assert make_optimizer(compose_cfg(["+exp=bounce_ppo"]), agent).param_groups[0]["betas"] == (0.9, 0.999)

@@ -36,7 +36,7 @@ from roto_trl.trainers.lr_schedule import KLAdaptiveLR, LinearDecayLR
 from roto_trl.trainers.policy_average import PolicyAverage, checked_decay, span_note
 from roto_trl.trainers.schedule import frames_per_iteration
 from roto_trl.trainers.std_ceiling import DEFAULT_FRAMES, StdCeiling, checked_std_ceiling
-from roto_trl.utils.cli import non_negative_or_off, number_pair, positive_int_or_null
+from roto_trl.utils.cli import is_number, non_negative_or_off, number_pair, positive_int_or_null
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
 
@@ -314,6 +314,21 @@ def weight_decay_parts(value) -> tuple[str, ...]:
     return parts
 
 
+def log_std_lr(a) -> float | None:
+    """The fixed rate of the policy's log-std in a parameter group of its own, outside the KL
+    rule: ``agent.log_std_lr`` when set (a number > 0), ``agent.lr`` with
+    ``agent.log_std_fixed_lr=true``, else None (the log-std moves with the networks). A bad
+    value is a one-line error naming the fix."""
+    value = a.get("log_std_lr")  # older runs lack the key: null
+    if value is not None:
+        if not (is_number(value) and value > 0):
+            raise ValueError(
+                f"agent.log_std_lr must be a number > 0 or null (the networks' rate), got {value!r}"
+            )
+        return float(value)
+    return float(a.lr) if bool(a.get("log_std_fixed_lr", False)) else None
+
+
 def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     """The PPO optimiser: one Adam over encoder + policy + value (the SSL gradient reaches the
     encoder through the same backward, see ``roto_trl.trainers.auxiliary``).
@@ -325,7 +340,11 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     ``agent.log_std_fixed_lr`` (default false) puts the policy's log-std in a parameter group of
     its own that keeps ``agent.lr`` when ``agent.lr_schedule=kl_adaptive`` moves the others' rate
     (``kl_adaptive: False`` in the group), so that the standard deviation can shrink at the
-    paper's rate while the KL rule holds the networks' steps at a tenth of it.
+    paper's rate while the KL rule holds the networks' steps at a tenth of it;
+    ``agent.log_std_lr`` (default null) gives that group a rate of its own instead (Adam moves a
+    parameter by about its rate per step, so at the KL rule's few 1e-5 the log-std can move by
+    only about 0.1 in a 2 M-frame run: the standard deviation stays near its initial 1).
+    Each group records its starting rate as ``base_lr``, which the annealed fixed rate follows.
 
     ``agent.adam_betas`` (default torch's ``[0.9, 0.999]``) are Adam's moment decays; equal betas
     (e.g. ``[0.99, 0.99]``) are Dohare et al.'s (2023, "Overcoming policy collapse in deep RL")
@@ -347,8 +366,8 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     lr, fused = float(a.lr), bool(a.get("fused_adam", True))
     betas = adam_betas(a.get("adam_betas", ADAM_BETAS))  # older runs lack the key: torch's
     decay = weight_decay(a.get("weight_decay"))  # older runs lack the key: off
-    fixed_log_std = bool(a.get("log_std_fixed_lr", False))
-    if decay == 0.0 and not fixed_log_std:
+    fixed_log_std = log_std_lr(a)
+    if decay == 0.0 and fixed_log_std is None:
         return torch.optim.Adam(agent.parameters(), lr=lr, betas=betas, fused=fused)
     log_std = agent.policy_head.log_std
     networks = [p for p in agent.parameters() if p is not log_std]
@@ -366,10 +385,12 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
             {"params": [p for p in networks if id(p) in decayed], "weight_decay": decay},
             {"params": [p for p in networks if id(p) not in decayed], "weight_decay": 0.0},
         ]
-    if fixed_log_std:
-        groups.append({"params": [log_std], "kl_adaptive": False, "weight_decay": 0.0})
-    else:
+    if fixed_log_std is None:
         groups[-1]["params"].append(log_std)
+    else:
+        groups.append({"params": [log_std], "lr": fixed_log_std, "kl_adaptive": False, "weight_decay": 0.0})
+    for group in groups:
+        group["base_lr"] = group.get("lr", lr)
     adam = torch.optim.AdamW if decay > 0.0 else torch.optim.Adam
     return adam(groups, lr=lr, betas=betas, fused=fused)
 

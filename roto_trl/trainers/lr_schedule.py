@@ -9,7 +9,8 @@ skrl's KL estimate (``kl_k3``), as skrl (the library the authors' agent is built
 ``agent.anneal_step_size=true`` (off by default) shrinks the step size linearly to zero over
 ``total_frames``, as CleanRL's ``anneal_lr``: the fixed rate itself (``LinearDecayLR``), or with
 the KL rule its target, so that the rule lowers the rate (with the rate annealed instead, the
-rule would raise it back; a group outside the rule, ``log_std_fixed_lr``'s, keeps its rate).
+rule would raise it back; a group outside the rule, the log-std's of ``log_std_fixed_lr`` or
+``log_std_lr``, keeps its rate).
 Both follow the frames trained, so a resumed run continues the ramp.
 """
 
@@ -74,13 +75,15 @@ class KLAdaptiveLR:
     def step(self, kl: float) -> float:
         """Update the learning rate from an epoch's mean approximate KL; returns the new rate."""
         for group in self.optimizer.param_groups:
-            if group.get("kl_adaptive", True):  # False: a group kept at its rate (log_std_fixed_lr)
+            if group.get("kl_adaptive", True):  # False: a group kept at its rate (the log-std's)
                 group["lr"] = kl_adaptive_lr(group["lr"], kl, self.kl_target)
         return self.optimizer.param_groups[0]["lr"]
 
 
 class LinearDecayLR:
-    """The fixed rate annealed: each group's rate is ``lr`` x (1 - fraction of the frames trained)."""
+    """The fixed rate annealed: each group's rate is its starting rate (``base_lr`` in the group,
+    as ``make_optimizer`` records it; ``lr`` for groups without one) x (1 - fraction of the frames
+    trained)."""
 
     def __init__(self, optimizer: torch.optim.Optimizer, lr: float) -> None:
         self.optimizer = optimizer
@@ -88,7 +91,7 @@ class LinearDecayLR:
 
     def set_progress(self, progress: float) -> None:
         for group in self.optimizer.param_groups:
-            group["lr"] = remaining(self.initial_lr, progress)
+            group["lr"] = remaining(group.get("base_lr", self.initial_lr), progress)
 
     def step(self, kl: float) -> float:
         """The rate does not follow the KL; returns the current rate."""
