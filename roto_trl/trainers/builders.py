@@ -342,8 +342,9 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     (``kl_adaptive: False`` in the group), so that the standard deviation can shrink at the
     paper's rate while the KL rule holds the networks' steps at a tenth of it;
     ``agent.log_std_lr`` (default null) gives that group a rate of its own instead (Adam moves a
-    parameter by about its rate per step, so at the KL rule's few 1e-5 the log-std can move by
-    only about 0.1 in a 2 M-frame run: the standard deviation stays near its initial 1).
+    parameter by at most about its rate per step, so at the KL rule's 0.3-6e-5 the log-std can
+    move by only 0.1-0.2 in a 2 M-frame run on Find: the standard deviation stays near its
+    initial 1; README "Left to do").
     Each group records its starting rate as ``base_lr``, which the annealed fixed rate follows.
 
     ``agent.adam_betas`` (default torch's ``[0.9, 0.999]``) are Adam's moment decays; equal betas
