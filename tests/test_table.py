@@ -2,6 +2,7 @@
 frame counts, and the authors' numbers beside them; checked on hand-written runs."""
 
 import csv
+import json
 import math
 from pathlib import Path
 
@@ -174,8 +175,30 @@ def test_stability_rows_by_hand(tmp_path, capsys):
     assert (float(row["kl_median"]), float(row["clip_median"])) == (0.02, 0.2)
     assert float(row["frames_per_s"]) == 1050
     assert (row["checkpoint_value"], row["checkpoint_episodes"]) == ("9.5", "100")
+    assert row["final_checkpoint_value"] == "" and math.isnan(float(row["held_checkpoints"]))
     printed = capsys.readouterr().out
     assert "0.70 (fell back) | 1.00 / 5.00 |" in printed and "episode/bounces: 1.00 / 5.00 / –" in printed
+    assert "| 9.5 (100) | – |" in printed
+    # the final checkpoint re-evaluated like the best one: 7.7 / 9.5 = 0.81 holds, 7.5 (0.79) falls back
+    made = {"episodes": 100, "seed": 1, "policy": "applied_mean"}
+    (run / "eval.json").write_text(json.dumps({**made, "physical": {"bounces_per_10s": 9.5}}))
+    for value, printed_cell in ((7.7, "| 7.7, 0.81 |"), (7.5, "| 7.5, 0.79 (fell back) |")):
+        (run / "eval_latest.json").write_text(json.dumps({**made, "physical": {"bounces_per_10s": value}}))
+        analyse.main(["stability", str(run), "--out", str(out), "--at", "100,200"])
+        with (out / "stability.csv").open(newline="") as handle:
+            (row,) = list(csv.DictReader(handle))
+        assert float(row["held_checkpoints"]) == pytest.approx(value / 9.5)
+        assert printed_cell in capsys.readouterr().out
+    # made otherwise (other episodes, or the sampled policy): not compared
+    for other in ({"episodes": 200}, {"policy": "stochastic"}):
+        latest = {**made, **other, "physical": {"bounces_per_10s": 7.7}}
+        (run / "eval_latest.json").write_text(json.dumps(latest))
+        analyse.main(["stability", str(run), "--out", str(out), "--at", "100,200"])
+        with (out / "stability.csv").open(newline="") as handle:
+            (row,) = list(csv.DictReader(handle))
+        assert math.isnan(float(row["held_checkpoints"]))
+    capsys.readouterr()
+    (run / "eval_latest.json").unlink()
     # a log with the headline metric of the training episodes reads that, in the evaluation's unit
     (run / "train.csv").write_text(
         "frames,episodes,episode/bounces,episode/bounces_per_10s\n50,2,1,1.5\n200,2,8,12\n"

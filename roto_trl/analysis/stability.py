@@ -7,6 +7,13 @@ per-iteration median per-minibatch KL (``kl_k3_median``, skrl's estimator) and c
 (``clip_fraction_median``) from ``train.csv``. ``eval.json`` (``evaluate.py``, 100 episodes of the
 best checkpoint for the results table) adds its headline value and episode count.
 
+The best of a run's evaluations is the maximum of some twenty noisy draws, so final / best reads
+low even for a run that kept what it learnt (Find's 0-or-1 metric on 128 worlds: a flat run
+passes 0.8 about 77 % of the time). ``eval_latest.json`` (``evaluate.py checkpoint=latest
+out=<run>/eval_latest.json``) gives the fair test: the final checkpoint against the best one,
+both re-evaluated on the same fresh episodes (``evaluate.py`` seeds them alike) with the same
+policy form, ``held_checkpoints``.
+
 The training episodes (the stochastic policy) give a second view at chosen frame marks: the mean
 of the evaluation's headline metric (``episode/<headline>`` in ``train.csv``; in runs logged
 before training wrote it, the task's episode metric ``TRAINING_METRIC``) over the episodes that
@@ -82,6 +89,8 @@ class RunStability:
     frames_per_s: float
     checkpoint_value: float | None = None  # eval.json's value of ``metric`` (best checkpoint)
     checkpoint_episodes: int | None = None
+    final_checkpoint_value: float | None = None  # eval_latest.json's value (the final checkpoint)
+    final_checkpoint_episodes: int | None = None
     training_metric: str = ""
     training: dict[int, float] | None = None  # mark (frames) -> training episodes' mean
     training_at_best: float = math.nan  # training episodes' mean before the best evaluation
@@ -91,6 +100,13 @@ class RunStability:
     def held(self) -> float:
         """final / best (1 when nothing was learnt: best 0)."""
         return self.final / self.best if self.best > 0 else 1.0
+
+    @property
+    def held_checkpoints(self) -> float:
+        """The final checkpoint's re-evaluation / the best one's (NaN unless both were made alike)."""
+        if self.checkpoint_value is None or self.final_checkpoint_value is None:
+            return math.nan
+        return self.final_checkpoint_value / self.checkpoint_value if self.checkpoint_value > 0 else 1.0
 
 
 def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
@@ -124,12 +140,21 @@ def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
         row.training_at_best, row.training_at_final = training_at(
             frames, values, episodes, [row.best_frames, row.frames]
         )
-    checkpoint = run.path / "eval.json"
-    if checkpoint.is_file():
-        result = json.loads(checkpoint.read_text())
-        row.checkpoint_value = result["physical"].get(metric)
-        row.checkpoint_episodes = int(result["episodes"])
+    best_eval, final_eval = (_evaluation(run.path / name) for name in ("eval.json", "eval_latest.json"))
+    if best_eval is not None:
+        row.checkpoint_value = best_eval["physical"].get(metric)
+        row.checkpoint_episodes = int(best_eval["episodes"])
+        # only an evaluation made like the best checkpoint's compares with it
+        if final_eval is not None and all(
+            final_eval.get(k) == best_eval.get(k) for k in ("episodes", "seed", "policy", "weights")
+        ):
+            row.final_checkpoint_value = final_eval["physical"].get(metric)
+            row.final_checkpoint_episodes = int(final_eval["episodes"])
     return row
+
+
+def _evaluation(path) -> dict | None:
+    return json.loads(path.read_text()) if path.is_file() else None
 
 
 def _median(series: list[float] | None) -> float:
@@ -143,21 +168,25 @@ def stability_markdown(rows: list[RunStability], marks=DEFAULT_MARKS) -> str:
     at = " / ".join(frames_label(m) for m in marks)
     header = (
         f"| run | seed | training episodes at {at} | metric | frames | best (at) | final | final / best"
-        " | training episodes before best / final eval | best checkpoint (episodes) | median KL"
-        " | median clip | frames/s |"
+        " | training episodes before best / final eval | best checkpoint (episodes)"
+        " | final checkpoint: value, / best checkpoint | median KL | median clip | frames/s |"
     )
-    lines = [header, "|" + "---|" * 13]
+    lines = [header, "|" + "---|" * 14]
     for r in rows:
-        checkpoint = "–"
+        checkpoint = final_checkpoint = "–"
         if r.checkpoint_value is not None:
             checkpoint = f"{r.checkpoint_value:.3g} ({r.checkpoint_episodes})"
+        if r.final_checkpoint_value is not None:
+            fell = " (fell back)" if r.held_checkpoints < HOLD_FRACTION else ""
+            final_checkpoint = f"{r.final_checkpoint_value:.3g}, {r.held_checkpoints:.2f}{fell}"
         flag = "" if r.held >= HOLD_FRACTION else " (fell back)"
         training = " / ".join(_cell((r.training or {}).get(m, math.nan)) for m in marks)
         lines.append(
             f"| {r.label} | {r.seed} | {r.training_metric}: {training} | {r.metric} | {r.frames:,} | "
             f"{r.best:.3g} ({r.best_frames:,}) | "
             f"{r.final:.3g} | {r.held:.2f}{flag} | "
-            f"{_cell(r.training_at_best)} / {_cell(r.training_at_final)} | {checkpoint} | "
+            f"{_cell(r.training_at_best)} / {_cell(r.training_at_final)} | "
+            f"{checkpoint} | {final_checkpoint} | "
             f"{r.kl_median:.3g} | {r.clip_median:.2f} | {r.frames_per_s:,.0f} |"
         )
     return "\n".join(lines) + "\n"
@@ -170,9 +199,14 @@ def _cell(value: float) -> str:
 def stability_csv_rows(rows: list[RunStability], marks=DEFAULT_MARKS) -> tuple[list[str], list[list]]:
     """Header and rows for ``stability.csv``: one column per field, ``training_<mark>`` per mark."""
     fields = [k for k in vars(rows[0]) if k != "training"]
-    header = [*fields, *(f"training_{frames_label(m)}" for m in marks), "held"]
+    header = [*fields, *(f"training_{frames_label(m)}" for m in marks), "held", "held_checkpoints"]
     body = [
-        [*(getattr(r, k) for k in fields), *((r.training or {}).get(m, math.nan) for m in marks), r.held]
+        [
+            *(getattr(r, k) for k in fields),
+            *((r.training or {}).get(m, math.nan) for m in marks),
+            r.held,
+            r.held_checkpoints,
+        ]
         for r in rows
     ]
     return header, body
