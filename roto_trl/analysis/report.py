@@ -8,13 +8,10 @@ never evaluated) are said so, not skipped silently.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
-
-def _read(path: Path) -> dict[str, Any] | None:
-    return json.loads(path.read_text()) if path.is_file() else None
+from roto_trl.analysis.runs import read_json
 
 
 def _table(rows: dict[str, Any]) -> list[str]:
@@ -30,8 +27,8 @@ def _table(rows: dict[str, Any]) -> list[str]:
 def write_index(run_dir: Path) -> Path:
     """Write ``<run_dir>/index.md`` from what the run directory holds; returns its path."""
     run_dir = Path(run_dir)
-    summary = _read(run_dir / "summary.json")
-    evaluation = _read(run_dir / "eval.json")
+    summary = read_json(run_dir / "summary.json")
+    evaluation = read_json(run_dir / "eval.json")
     title = summary["exp_name"] if summary else run_dir.name
     lines = [f"# {title}: {run_dir.name}", ""]
     if summary:

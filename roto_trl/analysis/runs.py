@@ -112,6 +112,11 @@ def learning_curve(runs: list[Run], x: str = "frames") -> Curve:
     return Curve(grid, values.mean(0), values.std(0), len(runs))
 
 
+def read_json(path: Path) -> dict | None:
+    """A run's JSON file (``summary.json``, ``eval.json``, ...), or None when it is not there."""
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
 def physical_metrics(runs: list[Run]) -> dict[str, np.ndarray]:
     """``metric -> [seeds]`` from each run's ``eval.json`` (``roto_trl/evaluate.py``), with the
     evaluation return as ``return``; runs not yet evaluated raise a ``ValueError`` naming the fix."""

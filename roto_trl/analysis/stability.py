@@ -25,13 +25,12 @@ policy PPO trains held (the training episodes do not drop).
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from roto_trl.analysis.runs import Run, run_csv
+from roto_trl.analysis.runs import Run, read_json, run_csv
 from roto_trl.analysis.table import frames_label
 from roto_trl.envs.factory import TASKS
 
@@ -140,7 +139,7 @@ def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
         row.training_at_best, row.training_at_final = training_at(
             frames, values, episodes, [row.best_frames, row.frames]
         )
-    best_eval, final_eval = (_evaluation(run.path / name) for name in ("eval.json", "eval_latest.json"))
+    best_eval, final_eval = (read_json(run.path / name) for name in ("eval.json", "eval_latest.json"))
     if best_eval is not None:
         row.checkpoint_value = best_eval["physical"].get(metric)
         row.checkpoint_episodes = int(best_eval["episodes"])
@@ -151,10 +150,6 @@ def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
             row.final_checkpoint_value = final_eval["physical"].get(metric)
             row.final_checkpoint_episodes = int(final_eval["episodes"])
     return row
-
-
-def _evaluation(path) -> dict | None:
-    return json.loads(path.read_text()) if path.is_file() else None
 
 
 def _median(series: list[float] | None) -> float:
@@ -169,7 +164,7 @@ def stability_markdown(rows: list[RunStability], marks=DEFAULT_MARKS) -> str:
     header = (
         f"| run | seed | training episodes at {at} | metric | frames | best (at) | final | final / best"
         " | training episodes before best / final eval | best checkpoint (episodes)"
-        " | final checkpoint: value, / best checkpoint | median KL | median clip | frames/s |"
+        " | final checkpoint, / best checkpoint | median KL | median clip | frames/s |"
     )
     lines = [header, "|" + "---|" * 14]
     for r in rows:
