@@ -122,10 +122,9 @@ def physical_metrics(runs: list[Run]) -> dict[str, np.ndarray]:
     evaluation return as ``return``; runs not yet evaluated raise a ``ValueError`` naming the fix."""
     values: dict[str, list[float]] = {}
     for run in runs:
-        path = run.path / "eval.json"
-        if not path.is_file():
+        result = read_json(run.path / "eval.json")
+        if result is None:
             raise ValueError(f"{run.path} has no eval.json; run: python roto_trl/evaluate.py run={run.path}")
-        result = json.loads(path.read_text())
         for name, value in {"return": result["return_mean"], **result["physical"]}.items():
             values.setdefault(name, []).append(float(value))
     return {name: np.asarray(v) for name, v in values.items()}
