@@ -54,6 +54,7 @@ from roto_trl.trainers.builders import (
     agent_for_env,
     apply_rollout_floor,
     compile_agent,
+    entropy_coeff,
     eval_seed,
     gae_horizon,
     log_std_lr,
@@ -133,6 +134,7 @@ def check_config(cfg: DictConfig) -> None:
     weight_decay(a.get("weight_decay"))
     weight_decay_parts(a.get("weight_decay_parts"))
     log_std_lr(a)
+    entropy_coeff(a)
     checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES))
     advantage_norm_scope(a.get("normalize_advantage"))
     policy_distribution_kwargs(  # runs from before the options: the defaults

@@ -260,6 +260,37 @@ def test_the_cpu_profile_takes_its_per_task_settings_from_the_task():
     env.close()
 
 
+def test_finds_recipe_trains_the_log_std_at_its_own_rate_without_the_entropy_bonus():
+    """Find's recipe puts the log-std in a group of its own at 1e-3 and its c_ent at 0 (find_fd's
+    paper 0.1 would hold the std at 1 against that rate); Bounce and Baoding keep one rate and
+    the exp's c_ent, and the exp files keep the paper's value. TorchRL's coefficient is c_ent / A."""
+    agent = Agent(("prop",), P, A)
+    log_std = agent.policy_head.log_std
+    built = {}
+    for exp in ("find_fd", "find_ppo", "bounce_tfd", "baoding_ppo"):
+        cfg = compose_cfg([f"+exp={exp}", "+profile=cpu"])
+        check_config(cfg)
+        groups = make_optimizer(cfg, agent).param_groups
+        (own,) = [g for g in groups if any(p is log_std for p in g["params"])]
+        rate = own["lr"] if len(own["params"]) == 1 else None
+        built[exp] = (rate, round(float(make_ppo_loss(cfg, agent).entropy_coeff) * A, 6))
+    assert built == {
+        "find_fd": (1e-3, 0.0),
+        "find_ppo": (1e-3, 0.0),
+        "bounce_tfd": (None, 0.05),
+        "baoding_ppo": (None, 0.05),
+    }
+    paper = compose_cfg(["+exp=find_fd"])
+    assert (
+        compose_cfg(["+exp=find_fd", "+profile=cpu"]).agent.entropy_coeff == paper.agent.entropy_coeff == 0.1
+    )
+    assert float(make_ppo_loss(paper, agent).entropy_coeff) * A == pytest.approx(0.1)
+    back = compose_cfg(["+exp=find_fd", "+profile=cpu", "agent.entropy_coeff_override=null"])
+    assert float(make_ppo_loss(back, agent).entropy_coeff) * A == pytest.approx(0.1)
+    with pytest.raises(ValueError, match=r"agent\.entropy_coeff_override must be a number >= 0"):
+        check_config(compose_cfg(["+exp=find_fd", "agent.entropy_coeff_override=-0.1"]))
+
+
 def test_the_cpu_profile_lengthens_only_rollouts_under_32_steps(tmp_path, capsys):
     for exp, paper, recipe in (("bounce_ppo", 16, 32), ("find_ppo", 32, 32), ("find_fd", 64, 64)):
         cfg = compose_cfg([f"+exp={exp}", "+profile=cpu"])
