@@ -52,6 +52,7 @@ from roto_trl.trainers.builders import (
     adam_betas,
     advantage_norm_scope,
     agent_for_env,
+    apply_entropy_override,
     apply_rollout_floor,
     compile_agent,
     entropy_coeff,
@@ -273,6 +274,7 @@ def train(cfg: DictConfig, overrides: Sequence[str] = ()) -> Path:
     """
     check_config(cfg)
     apply_rollout_floor(cfg)  # the CPU profile's minimum steps per rollout
+    apply_entropy_override(cfg, overrides)  # the CPU profile's c_ent on Find, unless c_ent is given
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # its storage notices are not progress
     cfg, run_dir, resumed, lock = prepare_run(cfg, overrides)
     try:

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers import TINY, compose_cfg
+from helpers import TINY, TRAIN, compose_cfg
 
 from roto_trl.train import train
 from roto_trl.trainers.checkpoint import load_checkpoint, save_checkpoint
@@ -25,7 +25,6 @@ from roto_trl.trainers.run_dir import RESUMABLE, reconcile_best
 from roto_trl.trainers.run_lock import RunLock
 
 ROOT = Path(__file__).resolve().parent.parent
-TRAIN = [sys.executable, str(ROOT / "roto_trl" / "train.py")]
 FRAMES_PER_ITERATION = 8 * 16  # TINY: 8 worlds x 16 steps
 
 

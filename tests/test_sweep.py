@@ -9,14 +9,13 @@ import shutil
 import signal
 import socket
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import optuna
 import pytest
-from helpers import TINY
+from helpers import TINY, TRAIN
 from hydra import compose, initialize_config_dir
 from hydra.core.override_parser.overrides_parser import OverridesParser
 from optuna.distributions import CategoricalDistribution, FloatDistribution, IntDistribution
@@ -28,7 +27,6 @@ from roto_trl.sweeps.storage import load_study, open_storage, redact
 from roto_trl.train import run_objective
 from roto_trl.utils.resources import resource_dir
 
-TRAIN = [sys.executable, str(Path(__file__).resolve().parent.parent / "roto_trl" / "train.py")]
 # A sweep of tiny trials (a few seconds each): PPO's space with R, mb, le and c_ent fixed on the
 # command line, so that only agent.lr is searched.
 TINY_SWEEP = ["-m", "+exp=find_ppo", "hparams_search=ppo", *TINY, "agent.entropy_coeff=0"]

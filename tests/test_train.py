@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 import torch
-from helpers import OPENMP_DEFAULTS, TINY, compose_cfg
+from helpers import OPENMP_DEFAULTS, TINY, TRAIN, compose_cfg
 from omegaconf import OmegaConf
 
 from roto_trl.analysis.checkpoint_eval import evaluate_run
@@ -24,7 +24,6 @@ from roto_trl.trainers.policy_average import policy_parameters
 from roto_trl.utils.resources import resource_dir
 
 FRAMES_PER_ITERATION = 8 * 16  # TINY: 8 worlds x 16 steps
-TRAIN = [sys.executable, str(Path(__file__).resolve().parent.parent / "roto_trl" / "train.py")]
 # Table A4's 21 experiments and the 3 no-last-action ablations (conf/exp/ may hold more: tuned sweeps)
 VARIANTS = ("ppo_prop", "ppo", "ppo_prop_nolastaction", "fr", "tr", "fd", "tfd", "fd_mem")
 EXPS = [f"{task}_{variant}" for task in ("find", "bounce", "baoding") for variant in VARIANTS]

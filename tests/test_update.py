@@ -5,10 +5,11 @@ feature term."""
 
 import copy
 import math
+import subprocess
 
 import pytest
 import torch
-from helpers import TINY, compose_cfg
+from helpers import TINY, TRAIN, compose_cfg
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 
@@ -21,7 +22,9 @@ from roto_trl.train import check_config, train
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.builders import (
     agent_for_env,
+    apply_entropy_override,
     apply_rollout_floor,
+    entropy_coeff,
     gae_horizon,
     make_advantage,
     make_eval_env,
@@ -289,6 +292,35 @@ def test_finds_recipe_trains_the_log_std_at_its_own_rate_without_the_entropy_bon
     assert float(make_ppo_loss(back, agent).entropy_coeff) * A == pytest.approx(0.1)
     with pytest.raises(ValueError, match=r"agent\.entropy_coeff_override must be a number >= 0"):
         check_config(compose_cfg(["+exp=find_fd", "agent.entropy_coeff_override=-0.1"]))
+
+
+def test_a_c_ent_on_the_command_line_wins_over_the_recipes_override(tmp_path, capsys):
+    """The recipe's c_ent 0 on Find replaces find_fd's 0.1 and says so; a c_ent given on the
+    command line (a sweep trial's too) wins over it, and the run saves what it trained with."""
+    cfg = compose_cfg(["+exp=find_fd", "+profile=cpu"])
+    apply_entropy_override(cfg)
+    assert entropy_coeff(cfg.agent) == 0.0
+    assert "agent.entropy_coeff: 0.1 -> 0.0 (agent.entropy_coeff_override" in capsys.readouterr().out
+    given = ["+exp=find_fd", "+profile=cpu", "agent.entropy_coeff=0.05"]
+    cfg = compose_cfg(given)
+    apply_entropy_override(cfg, given)
+    assert cfg.agent.entropy_coeff_override is None and entropy_coeff(cfg.agent) == 0.05
+    both = [*given, "agent.entropy_coeff_override=0.02"]
+    cfg = compose_cfg(both)
+    apply_entropy_override(cfg, both)
+    assert entropy_coeff(cfg.agent) == 0.02
+    run = tmp_path / "run"
+    small = ["env.num_envs=8", "eval.num_envs=2", "total_frames=256", "agent.minibatches=2", "agent.epochs=1"]
+    done = subprocess.run(
+        [*TRAIN, *given, *small, "logger=csv", "progress=false", f"run_dir={run}"],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "agent.entropy_coeff_override: 0.0 -> null (agent.entropy_coeff=0.05)" in done.stdout
+    saved = OmegaConf.load(run / "config.yaml").agent
+    assert (saved.entropy_coeff, saved.entropy_coeff_override) == (0.05, None)
 
 
 def test_the_cpu_profile_lengthens_only_rollouts_under_32_steps(tmp_path, capsys):

@@ -159,6 +159,28 @@ def entropy_coeff(a) -> float:
     return float(value)
 
 
+def apply_entropy_override(cfg, overrides: Sequence[str] = ()) -> None:
+    """Settle ``agent.entropy_coeff_override`` against the command line (edits ``cfg``).
+
+    A c_ent given as ``agent.entropy_coeff=`` (a sweep trial's included) wins over the override
+    (the CPU recipe's 0 on Find), which would otherwise replace it unseen: the override is
+    dropped. Either way, when the two differ, one line says which c_ent the run uses.
+    """
+    a = _cfg(cfg).agent
+    override = a.get("entropy_coeff_override")  # older runs lack the key: null
+    if override is None or override == a.entropy_coeff:
+        return
+    given = {item.split("=", 1)[0].lstrip("+~") for item in overrides}
+    if "agent.entropy_coeff" in given and "agent.entropy_coeff_override" not in given:
+        print(f"agent.entropy_coeff_override: {override} -> null (agent.entropy_coeff={a.entropy_coeff})")
+        a.entropy_coeff_override = None
+    else:
+        print(
+            f"agent.entropy_coeff: {a.entropy_coeff} -> {override} (agent.entropy_coeff_override; "
+            f"agent.entropy_coeff_override=null keeps {a.entropy_coeff})"
+        )
+
+
 def make_mean_bound_loss(cfg, agent: Agent) -> PolicyMeanBoundLoss | None:
     """The bound on the policy mean's pre-tanh output (``agent.mean_bound``, weight
     ``agent.mean_bound_coeff``), or None when the weight is 0 (the default): then the update does
