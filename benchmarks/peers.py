@@ -28,7 +28,6 @@ from torch import nn
 from roto_trl.envs.registration import ENV_IDS
 from roto_trl.modules.agent import checked_critic_sizes
 from roto_trl.modules.networks import ENCODER_SIZES, Encoder, PolicyHead, ValueHead
-from roto_trl.trainers.builders import entropy_coeff
 
 
 def _vec_env(cfg):
@@ -90,7 +89,7 @@ def skrl_fps(cfg, iterations: int) -> float:
         grad_norm_clip=float(a.max_grad_norm),
         ratio_clip=float(a.clip_epsilon),
         value_clip=float(a.clip_value),
-        entropy_loss_scale=entropy_coeff(a),
+        entropy_loss_scale=float(a.entropy_coeff),
         value_loss_scale=float(a.critic_coeff),
     )
     ppo_cfg.experiment.write_interval = 0
@@ -213,7 +212,7 @@ def rsl_rl_runner(cfg, log_dir: str | None = None, layer_norm: bool = False):
             "gamma": float(a.gamma),
             "lam": float(a.lmbda),
             "value_loss_coef": float(a.critic_coeff),
-            "entropy_coef": entropy_coeff(a),
+            "entropy_coef": float(a.entropy_coeff),
             "learning_rate": float(a.lr),
             "max_grad_norm": float(a.max_grad_norm),
             "schedule": "fixed",

@@ -52,10 +52,8 @@ from roto_trl.trainers.builders import (
     adam_betas,
     advantage_norm_scope,
     agent_for_env,
-    apply_entropy_override,
     apply_rollout_floor,
     compile_agent,
-    entropy_coeff,
     eval_seed,
     gae_horizon,
     log_std_lr,
@@ -135,7 +133,6 @@ def check_config(cfg: DictConfig) -> None:
     weight_decay(a.get("weight_decay"))
     weight_decay_parts(a.get("weight_decay_parts"))
     log_std_lr(a)
-    entropy_coeff(a)
     checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES))
     advantage_norm_scope(a.get("normalize_advantage"))
     policy_distribution_kwargs(  # runs from before the options: the defaults
@@ -274,7 +271,6 @@ def train(cfg: DictConfig, overrides: Sequence[str] = ()) -> Path:
     """
     check_config(cfg)
     apply_rollout_floor(cfg)  # the CPU profile's minimum steps per rollout
-    apply_entropy_override(cfg, overrides)  # the CPU profile's c_ent on Find, unless c_ent is given
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # its storage notices are not progress
     cfg, run_dir, resumed, lock = prepare_run(cfg, overrides)
     try:

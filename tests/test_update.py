@@ -5,11 +5,10 @@ feature term."""
 
 import copy
 import math
-import subprocess
 
 import pytest
 import torch
-from helpers import TINY, TRAIN, compose_cfg
+from helpers import TINY, compose_cfg
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 
@@ -22,9 +21,7 @@ from roto_trl.train import check_config, train
 from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.builders import (
     agent_for_env,
-    apply_entropy_override,
     apply_rollout_floor,
-    entropy_coeff,
     gae_horizon,
     make_advantage,
     make_eval_env,
@@ -261,66 +258,6 @@ def test_the_cpu_profile_takes_its_per_task_settings_from_the_task():
     env = make_eval_env(find)
     assert env.batch_size == torch.Size([128])
     env.close()
-
-
-def test_finds_recipe_trains_the_log_std_at_its_own_rate_without_the_entropy_bonus():
-    """Find's recipe puts the log-std in a group of its own at 1e-3 and its c_ent at 0 (find_fd's
-    paper 0.1 would hold the std at 1 against that rate); Bounce and Baoding keep one rate and
-    the exp's c_ent, and the exp files keep the paper's value. TorchRL's coefficient is c_ent / A."""
-    agent = Agent(("prop",), P, A)
-    log_std = agent.policy_head.log_std
-    built = {}
-    for exp in ("find_fd", "find_ppo", "bounce_tfd", "baoding_ppo"):
-        cfg = compose_cfg([f"+exp={exp}", "+profile=cpu"])
-        check_config(cfg)
-        groups = make_optimizer(cfg, agent).param_groups
-        (own,) = [g for g in groups if any(p is log_std for p in g["params"])]
-        rate = own["lr"] if len(own["params"]) == 1 else None
-        built[exp] = (rate, round(float(make_ppo_loss(cfg, agent).entropy_coeff) * A, 6))
-    assert built == {
-        "find_fd": (1e-3, 0.0),
-        "find_ppo": (1e-3, 0.0),
-        "bounce_tfd": (None, 0.05),
-        "baoding_ppo": (None, 0.05),
-    }
-    paper = compose_cfg(["+exp=find_fd"])
-    assert (
-        compose_cfg(["+exp=find_fd", "+profile=cpu"]).agent.entropy_coeff == paper.agent.entropy_coeff == 0.1
-    )
-    assert float(make_ppo_loss(paper, agent).entropy_coeff) * A == pytest.approx(0.1)
-    back = compose_cfg(["+exp=find_fd", "+profile=cpu", "agent.entropy_coeff_override=null"])
-    assert float(make_ppo_loss(back, agent).entropy_coeff) * A == pytest.approx(0.1)
-    with pytest.raises(ValueError, match=r"agent\.entropy_coeff_override must be a number >= 0"):
-        check_config(compose_cfg(["+exp=find_fd", "agent.entropy_coeff_override=-0.1"]))
-
-
-def test_a_c_ent_on_the_command_line_wins_over_the_recipes_override(tmp_path, capsys):
-    """The recipe's c_ent 0 on Find replaces find_fd's 0.1 and says so; a c_ent given on the
-    command line (a sweep trial's too) wins over it, and the run saves what it trained with."""
-    cfg = compose_cfg(["+exp=find_fd", "+profile=cpu"])
-    apply_entropy_override(cfg)
-    assert entropy_coeff(cfg.agent) == 0.0
-    assert "agent.entropy_coeff: 0.1 -> 0.0 (agent.entropy_coeff_override" in capsys.readouterr().out
-    given = ["+exp=find_fd", "+profile=cpu", "agent.entropy_coeff=0.05"]
-    cfg = compose_cfg(given)
-    apply_entropy_override(cfg, given)
-    assert cfg.agent.entropy_coeff_override is None and entropy_coeff(cfg.agent) == 0.05
-    both = [*given, "agent.entropy_coeff_override=0.02"]
-    cfg = compose_cfg(both)
-    apply_entropy_override(cfg, both)
-    assert entropy_coeff(cfg.agent) == 0.02
-    run = tmp_path / "run"
-    small = ["env.num_envs=8", "eval.num_envs=2", "total_frames=256", "agent.minibatches=2", "agent.epochs=1"]
-    done = subprocess.run(
-        [*TRAIN, *given, *small, "logger=csv", "progress=false", f"run_dir={run}"],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert done.returncode == 0, done.stderr[-2000:]
-    assert "agent.entropy_coeff_override: 0.0 -> null (agent.entropy_coeff=0.05)" in done.stdout
-    saved = OmegaConf.load(run / "config.yaml").agent
-    assert (saved.entropy_coeff, saved.entropy_coeff_override) == (0.05, None)
 
 
 def test_the_cpu_profile_lengthens_only_rollouts_under_32_steps(tmp_path, capsys):

@@ -128,7 +128,6 @@ def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
     c_ent (``agent.entropy_coeff``) multiplies the Gaussian's entropy per action dimension (the
     mean over dimensions, skrl's convention, in which the paper's c_ent values were tuned);
     TorchRL's loss takes the entropy summed over dimensions, so its coefficient is c_ent / A.
-    ``agent.entropy_coeff_override``, when set, replaces the exp's c_ent (``entropy_coeff``).
     The logged ``entropy`` is TorchRL's, the sum. ``agent.clip_value: null`` trains the value head
     on the plain squared error (no ``value_clip_fraction`` is then logged).
     """
@@ -139,46 +138,12 @@ def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
         clip_epsilon=float(a.clip_epsilon),
         clip_value=None if a.clip_value is None else float(a.clip_value),  # None: unclipped
         entropy_bonus=True,
-        entropy_coeff=entropy_coeff(a) / agent.n_actions,
+        entropy_coeff=float(a.entropy_coeff) / agent.n_actions,
         critic_coeff=float(a.critic_coeff),
         loss_critic_type="l2",
         normalize_advantage=advantage_norm_scope(a.get("normalize_advantage")) == "minibatch",
         functional=False,  # the heads' own parameters: one optimiser updates them with the encoder
     )
-
-
-def entropy_coeff(a) -> float:
-    """The run's c_ent: ``agent.entropy_coeff_override`` when set (the CPU recipe's per-task value,
-    ``env.cpu_recipe.entropy_coeff``), else the exp's ``agent.entropy_coeff``; a value that is
-    not a number >= 0 is a one-line error naming the fix."""
-    override = a.get("entropy_coeff_override")  # older runs lack the key: null
-    key = "agent.entropy_coeff" if override is None else "agent.entropy_coeff_override"
-    value = a.entropy_coeff if override is None else override
-    if not (is_number(value) and value >= 0):
-        raise ValueError(f"{key} must be a number >= 0 (e.g. 0.05), got {value!r}")
-    return float(value)
-
-
-def apply_entropy_override(cfg, overrides: Sequence[str] = ()) -> None:
-    """Settle ``agent.entropy_coeff_override`` against the command line (edits ``cfg``).
-
-    A c_ent given as ``agent.entropy_coeff=`` (a sweep trial's included) wins over the override
-    (the CPU recipe's 0 on Find), which would otherwise replace it unseen: the override is
-    dropped. Either way, when the two differ, one line says which c_ent the run uses.
-    """
-    a = _cfg(cfg).agent
-    override = a.get("entropy_coeff_override")  # older runs lack the key: null
-    if override is None or override == a.entropy_coeff:
-        return
-    given = {item.split("=", 1)[0].lstrip("+~") for item in overrides}
-    if "agent.entropy_coeff" in given and "agent.entropy_coeff_override" not in given:
-        print(f"agent.entropy_coeff_override: {override} -> null (agent.entropy_coeff={a.entropy_coeff})")
-        a.entropy_coeff_override = None
-    else:
-        print(
-            f"agent.entropy_coeff: {a.entropy_coeff} -> {override} (agent.entropy_coeff_override; "
-            f"agent.entropy_coeff_override=null keeps {a.entropy_coeff})"
-        )
 
 
 def make_mean_bound_loss(cfg, agent: Agent) -> PolicyMeanBoundLoss | None:
@@ -379,8 +344,7 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     ``agent.log_std_lr`` (default null) gives that group a rate of its own instead (Adam moves a
     parameter by at most about its rate per step, so at the KL rule's 0.3-6e-5 the log-std can
     move by only 0.1-0.2 in a 2 M-frame run on Find: the standard deviation stays near its
-    initial 1); ``+profile=cpu`` sets 1e-3 on Find (``env.cpu_recipe.log_std_lr``, README "The
-    recipe"), where it holds the controller.
+    initial 1; README "Left to do").
     Each group records its starting rate as ``base_lr``, which the annealed fixed rate follows.
 
     ``agent.adam_betas`` (default torch's ``[0.9, 0.999]``) are Adam's moment decays; equal betas
