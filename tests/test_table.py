@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from roto_trl import analyse
-from roto_trl.analysis.stability import training_at
+from roto_trl.analysis.stability import best_evaluation, training_at
 from roto_trl.analysis.table import frames_label, load_reference, parse_frames, table_metric
 
 M = 1_000_000
@@ -146,6 +146,15 @@ def test_table_rejects_bad_input_with_one_line(tmp_path):
     (tmp_path / "runs" / "bounce_fd-s1" / "eval.csv").unlink()
     with pytest.raises(SystemExit, match=r"bounce_fd-s1 has no eval\.csv"):
         analyse.main(["table", str(tmp_path / "runs" / "*"), "--out", str(tmp_path / "t")])
+
+
+def test_the_best_evaluation_is_the_one_best_pt_holds():
+    """Ranked as training ranks evaluations for best.pt: the metric, then the return on a tie (a
+    Find fraction repeats often on 128 worlds), the earliest of exact ties, NaN last."""
+    metric = np.array([0.25, 0.5, 0.5, np.nan, 0.5])
+    assert best_evaluation(metric, [90.0, 100.0, 120.0, 500.0, 110.0], "reached_3cm") == 2
+    assert best_evaluation(metric, [90.0, 100.0, 100.0, 500.0, 100.0], "reached_3cm") == 1
+    assert best_evaluation(metric, None, "reached_3cm") == 1  # logs without returns: the metric alone
 
 
 def test_stability_rows_by_hand(tmp_path, capsys):

@@ -33,6 +33,7 @@ import numpy as np
 from roto_trl.analysis.runs import Run, read_json, run_csv
 from roto_trl.analysis.table import frames_label
 from roto_trl.envs.factory import TASKS
+from roto_trl.trainers.evaluation import selection_key
 
 HOLD_FRACTION = 0.8
 TRAINING_METRIC = {  # runs whose train.csv lacks episode/<headline>
@@ -108,6 +109,21 @@ class RunStability:
         return self.final_checkpoint_value / self.checkpoint_value if self.checkpoint_value > 0 else 1.0
 
 
+def best_evaluation(values: np.ndarray, returns, metric: str) -> int:
+    """The index of the evaluation a run's ``best.pt`` holds: ranked as training ranks them
+    (``selection_key``: the headline metric, then the return; the earliest of exact ties).
+
+    ``values`` ``[E]`` the headline metric (NaN ranks last), ``returns`` ``[E]`` the mean returns
+    or None (logs without them rank by the metric alone).
+    """
+    returns = np.zeros(len(values)) if returns is None else np.asarray(returns, dtype=float)
+    results = [
+        {metric: -math.inf if math.isnan(v) else v, "return_mean": -math.inf if math.isnan(r) else r}
+        for v, r in zip(values.tolist(), returns.tolist(), strict=True)
+    ]
+    return max(range(len(results)), key=lambda i: selection_key(results[i], metric))
+
+
 def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
     """The run's row, with the training episodes at ``marks``; a ``ValueError`` naming the
     missing log otherwise."""
@@ -117,7 +133,7 @@ def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
     if metric not in ev:
         raise ValueError(f"{run.path}/eval.csv has no {metric} column; it is not a {run.task} run's log")
     values = np.asarray(ev[metric], dtype=float)
-    best = int(np.nanargmax(values))
+    best = best_evaluation(values, ev.get("return_mean"), metric)
     row = RunStability(
         label=run.label,
         seed=run.seed,
