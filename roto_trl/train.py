@@ -123,6 +123,8 @@ def check_config(cfg: DictConfig) -> None:
     if not float(cfg.agent.lr) > 0:
         raise ValueError(f"agent.lr must be > 0, got {cfg.agent.lr}")
     a = cfg.agent
+    if not (is_number(a.entropy_coeff) and a.entropy_coeff >= 0):
+        raise ValueError(f"agent.entropy_coeff must be a number >= 0 (e.g. 0.05), got {a.entropy_coeff!r}")
     if a.clip_value is not None and not (is_number(a.clip_value) and a.clip_value > 0):
         raise ValueError(f"agent.clip_value must be > 0 or null (no value clipping), got {a.clip_value!r}")
     checked_mean_bound(a.get("mean_bound"), a.get("mean_bound_coeff"))  # older runs lack both: defaults

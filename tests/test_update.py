@@ -84,6 +84,9 @@ def test_entropy_bonus_is_c_ent_times_the_mean_entropy_per_action_dimension():
     per_dimension = GAUSSIAN_ENTROPY_AT_UNIT_STD + 0.5
     assert float(out["loss_entropy"].detach()) == pytest.approx(-0.1 * per_dimension, rel=1e-5)
     assert float(out["entropy"]) == pytest.approx(A * per_dimension, rel=1e-5)  # TorchRL logs the sum
+    for bad in ("-0.1", "true", "high"):
+        with pytest.raises(ValueError, match=r"agent\.entropy_coeff must be a number >= 0"):
+            check_config(compose_cfg(["+exp=find_fd", f"agent.entropy_coeff={bad}"]))
 
 
 def test_log_std_is_clamped_to_the_authors_range():
