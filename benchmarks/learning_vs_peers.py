@@ -47,9 +47,8 @@ from roto_trl.analysis.stability import training_at
 from roto_trl.analysis.table import parse_frames
 from roto_trl.envs.factory import TASKS
 from roto_trl.trainers.builders import eval_seed
-from roto_trl.utils.resources import resource_dir
+from roto_trl.utils.resources import TRAIN_SCRIPT, resource_dir
 
-TRAIN = Path(__file__).resolve().parent.parent / "roto_trl" / "train.py"
 PROGRESS_LINES = 10  # rsl_rl's progress lines over its budget
 FINAL_ACTIONS = ("gaussian_mean", "applied_mean")  # the final policies' deterministic actions
 
@@ -74,7 +73,7 @@ def ours(args, overrides: list[str], out: Path) -> tuple[list[tuple[int, float, 
     run_dir = out / "ours"
     command = [
         sys.executable,
-        str(TRAIN),
+        str(TRAIN_SCRIPT),
         f"+exp={args.exp}",
         f"env.num_envs={args.num_envs}",
         f"total_frames={args.frames}",

@@ -23,14 +23,14 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-TRAIN = Path(__file__).resolve().parent.parent / "roto_trl" / "train.py"
+from roto_trl.utils.resources import TRAIN_SCRIPT
 
 
 def run_multirun(sweep_dir: Path, args: argparse.Namespace, launcher: list[str]) -> float:
     """Run the multirun into ``sweep_dir``; its wall time in seconds."""
     command = [
         sys.executable,
-        str(TRAIN),
+        str(TRAIN_SCRIPT),
         "-m",
         f"+exp={args.exp}",
         f"+profile={args.profile}",

@@ -25,9 +25,7 @@ import optuna
 
 from roto_trl.sweeps.report import default_name, fmt, write_best, write_summary
 from roto_trl.sweeps.storage import load_study
-from roto_trl.utils.resources import resource_dir
-
-TRAIN_SCRIPT = Path(__file__).resolve().parent / "train.py"
+from roto_trl.utils.resources import TRAIN_SCRIPT, resource_dir
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,15 +1,14 @@
 """Scripted policies and tiny training configs shared by the tests."""
 
 import sys
-from pathlib import Path
 
 import torch
 from hydra import compose, initialize_config_dir
 
-from roto_trl.utils.resources import resource_dir
+from roto_trl.utils.resources import TRAIN_SCRIPT, resource_dir
 
 # the training command line, for tests that run it as a user would
-TRAIN = [sys.executable, str(Path(__file__).resolve().parent.parent / "roto_trl" / "train.py")]
+TRAIN = [sys.executable, str(TRAIN_SCRIPT)]
 
 # tiny and fast on top of +profile=smoke: short episodes, few gradient steps
 TINY = [

@@ -11,6 +11,9 @@ from pathlib import Path
 
 _PACKAGE_DIR = Path(__file__).resolve().parent.parent  # roto_trl/
 
+# the training entry point, for tools that run it as a user would (sweeps, benchmarks, tests)
+TRAIN_SCRIPT = _PACKAGE_DIR / "train.py"
+
 
 def resource_dir(kind: str) -> Path:
     """Return the directory of ``kind`` (``"assets"`` or ``"conf"``), wheel or checkout."""
