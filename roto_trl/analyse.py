@@ -74,7 +74,7 @@ def cmd_curves(runs: list[Run], out: Path, args) -> list[Path]:
     rows = []
     for exp, members in groups.items():
         curve = learning_curve(members, args.x)
-        ax.plot(curve.x, curve.mean, label=f"{exp} ({curve.seeds} seeds)")
+        ax.plot(curve.x, curve.mean, label=f"{exp} ({curve.seeds} seed{'' if curve.seeds == 1 else 's'})")
         ax.fill_between(curve.x, curve.mean - curve.std, curve.mean + curve.std, alpha=0.25)
         xs = curve.x.astype(int) if args.x == "frames" else curve.x
         rows += [[exp, x, m, s, curve.seeds] for x, m, s in zip(xs, curve.mean, curve.std, strict=True)]
