@@ -3,6 +3,7 @@
 In a source checkout (and an editable install) they live at the repository root, next to the
 ``roto_trl`` package; in a wheel they are packed inside it as ``roto_trl/assets`` and
 ``roto_trl/conf`` (see ``[tool.hatch.build.targets.wheel.force-include]`` in pyproject.toml).
+``TRAIN_SCRIPT`` is where ``train.py`` lies in either layout, for the tools that run it.
 """
 
 from __future__ import annotations
