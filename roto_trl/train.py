@@ -135,7 +135,9 @@ def check_config(cfg: DictConfig) -> None:
     weight_decay(a.get("weight_decay"))
     weight_decay_parts(a.get("weight_decay_parts"))
     log_std_lr(a)
-    checked_std_ceiling(a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES))
+    checked_std_ceiling(
+        a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES), int(cfg.total_frames)
+    )
     advantage_norm_scope(a.get("normalize_advantage"))
     policy_distribution_kwargs(  # runs from before the options: the defaults
         str(a.get("deterministic_action", DEFAULT_DETERMINISTIC_ACTION)),

@@ -726,9 +726,23 @@ def test_the_std_ceiling_holds_the_log_std_under_it_after_every_step_and_below_i
         ("std_ceiling_frames", 1000, r"agent\.std_ceiling_frames must be \[begin, end\] frames"),
         ("std_ceiling_frames", "[200,100]", r"agent\.std_ceiling_frames must be \[begin, end\] frames"),
         ("std_ceiling_frames", "[0,1.5]", r"agent\.std_ceiling_frames must be \[begin, end\] frames"),
+        ("std_ceiling_frames", "[0.9,0.6]", r"or fractions of total_frames, e\.g\. \[0\.6,0\.9\]"),
     ):
         with pytest.raises(ValueError, match=message):
             check_config(compose_cfg(["+exp=bounce_ppo", "agent.std_ceiling=0.3", f"agent.{key}={bad}"]))
+
+
+def test_the_std_ceiling_window_in_fractions_of_total_frames_is_the_same_window_in_frames():
+    agent = Agent(("prop",), P, A)
+    ceiling = ["+exp=bounce_ppo", "agent.std_ceiling=0.25", "total_frames=2000000"]
+    fractions = compose_cfg([*ceiling, "agent.std_ceiling_frames=[0.6,0.9]"])
+    frames = compose_cfg([*ceiling, "agent.std_ceiling_frames=[1200000,1800000]"])
+    by_fraction = make_std_ceiling(fractions, agent, make_optimizer(fractions, agent))
+    by_frames = make_std_ceiling(frames, agent, make_optimizer(frames, agent))
+    assert (by_fraction.begin, by_fraction.end) == (by_frames.begin, by_frames.end) == (1_200_000, 1_800_000)
+    longer = compose_cfg([*ceiling, "agent.std_ceiling_frames=[0.6,0.9]", "total_frames=10000000"])
+    stretched = make_std_ceiling(longer, agent, make_optimizer(longer, agent))
+    assert (stretched.begin, stretched.end) == (6_000_000, 9_000_000)  # the window scales with the run
 
 
 def test_effective_rank_by_hand():

@@ -184,9 +184,10 @@ def make_std_ceiling(cfg, agent: Agent, optimizer: torch.optim.Optimizer) -> Std
     """The falling ceiling on the policy's standard deviation (``agent.std_ceiling`` > 0),
     projected after every step of ``optimizer``, or None (the default, null: no ceiling but the
     log-std clamp)."""
-    a = _cfg(cfg).agent
+    cfg = _cfg(cfg)
+    a = cfg.agent
     final, (begin, end) = checked_std_ceiling(
-        a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES)
+        a.get("std_ceiling"), a.get("std_ceiling_frames", DEFAULT_FRAMES), int(cfg.total_frames)
     )
     if final is None:  # older runs lack the keys: off
         return None

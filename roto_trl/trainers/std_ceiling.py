@@ -30,17 +30,22 @@ from roto_trl.utils.cli import is_number, number_pair
 DEFAULT_FRAMES = (500_000, 1_500_000)  # conf/agent/ppo.yaml's; configs saved before the option lack it
 
 
-def checked_std_ceiling(final, frames) -> tuple[float | None, tuple[int, int]]:
+def checked_std_ceiling(final, frames, total_frames: int) -> tuple[float | None, tuple[int, int]]:
     """``(agent.std_ceiling, agent.std_ceiling_frames)`` checked: a positive final standard
-    deviation or None (off), and frames ``[begin, end]`` with 0 <= begin < end; a one-line error
-    naming the fix."""
+    deviation or None (off), and the window ``[begin, end]`` in frames with 0 <= begin < end.
+    The window is either frames (two ints, e.g. ``[500000, 1500000]``) or fractions of
+    ``total_frames`` (numbers in [0, 1], at least one written with a point, e.g. ``[0.6, 0.9]``),
+    so that one window fits runs of any length; fractions come back as frames. A one-line error
+    naming the fix otherwise."""
     if final is not None and not (is_number(final) and float(final) > 0):
         raise ValueError(f"agent.std_ceiling must be a standard deviation > 0 or null (off), got {final!r}")
     pair = number_pair(frames)
+    if pair is not None and any(isinstance(f, float) for f in pair) and all(0 <= f <= 1 for f in pair):
+        pair = (round(pair[0] * total_frames), round(pair[1] * total_frames))
     if pair is None or not (all(isinstance(f, int) for f in pair) and 0 <= pair[0] < pair[1]):
         raise ValueError(
             f"agent.std_ceiling_frames must be [begin, end] frames with 0 <= begin < end, e.g. "
-            f"[500000,1500000], got {frames!r}"
+            f"[500000,1500000], or fractions of total_frames, e.g. [0.6,0.9]; got {frames!r}"
         )
     return (None if final is None else float(final)), (pair[0], pair[1])
 
