@@ -235,20 +235,26 @@ def test_the_cpu_profile_gives_any_experiment_the_recipe_and_keeps_its_values(ex
 
 def test_the_cpu_profile_takes_its_per_task_settings_from_the_task():
     """Bounce's recipe decays the weights (AdamW), Find's and Baoding's do not (plain Adam); Find's
-    evaluates on 128 worlds (its 0/1 metric needs them), Bounce's and Baoding's on 32."""
+    evaluates on 128 worlds (its 0/1 metric needs them), Bounce's and Baoding's on 32; find_ppo
+    (the one exp that sets it) holds the std under a ceiling falling from 1 to 0.3 over 0.6-0.9
+    of the run."""
     agent = Agent(("prop",), P, A)
     built = {}
     for exp in ("bounce_ppo", "bounce_fd", "find_ppo", "find_fd", "baoding_fd_mem"):
-        cfg = compose_cfg([f"+exp={exp}", "+profile=cpu"])
+        cfg = compose_cfg([f"+exp={exp}", "+profile=cpu", "total_frames=2000000"])
         check_config(cfg)
         optimizer = make_optimizer(cfg, agent)
-        built[exp] = (type(optimizer).__name__, optimizer.param_groups[0]["weight_decay"], cfg.eval.num_envs)
+        ceiling = make_std_ceiling(cfg, agent, optimizer)
+        window = None if ceiling is None else (ceiling.start, ceiling.final, ceiling.begin, ceiling.end)
+        decay = optimizer.param_groups[0]["weight_decay"]
+        built[exp] = (type(optimizer).__name__, decay, cfg.eval.num_envs, window)
+    late = (1.0, 0.3, 1_200_000, 1_800_000)
     assert built == {
-        "bounce_ppo": ("AdamW", 3.0, 32),
-        "bounce_fd": ("AdamW", 3.0, 32),
-        "find_ppo": ("Adam", 0.0, 128),
-        "find_fd": ("Adam", 0.0, 128),
-        "baoding_fd_mem": ("Adam", 0.0, 32),
+        "bounce_ppo": ("AdamW", 3.0, 32, None),
+        "bounce_fd": ("AdamW", 3.0, 32, None),
+        "find_ppo": ("Adam", 0.0, 128, late),
+        "find_fd": ("Adam", 0.0, 128, None),
+        "baoding_fd_mem": ("Adam", 0.0, 32, None),
     }
     paper = compose_cfg(["+exp=bounce_ppo"])
     assert (paper.agent.weight_decay, paper.eval.num_envs) == (0.0, 100)  # the paper's: train.yaml's
@@ -257,6 +263,7 @@ def test_the_cpu_profile_takes_its_per_task_settings_from_the_task():
     find = compose_cfg(["+exp=find_ppo", "+profile=cpu", "env.cpu_recipe.weight_decay=1.0"])
     assert make_optimizer(find, agent).param_groups[0]["weight_decay"] == 1.0
     assert compose_cfg(["+exp=find_ppo", "+profile=cpu", "eval.num_envs=64"]).eval.num_envs == 64
+    assert compose_cfg(["+exp=find_ppo", "+profile=cpu", "agent.std_ceiling=null"]).agent.std_ceiling is None
     find = compose_cfg(["+exp=find_ppo", "+profile=cpu", "+env.overrides.num_threads=1"])
     env = make_eval_env(find)
     assert env.batch_size == torch.Size([128])
