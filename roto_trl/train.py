@@ -49,7 +49,9 @@ from roto_trl.objectives.mean_bound import checked_mean_bound
 from roto_trl.objectives.proximal_feature import checked_feature_coeff
 from roto_trl.trainers.builders import (
     ADAM_BETAS,
+    ADAM_EPS,
     adam_betas,
+    adam_eps,
     advantage_norm_scope,
     agent_for_env,
     apply_rollout_floor,
@@ -132,6 +134,7 @@ def check_config(cfg: DictConfig) -> None:
     gae_horizon(cfg)
     checked_decay(a.get("policy_ema_decay"))
     adam_betas(a.get("adam_betas", ADAM_BETAS))
+    adam_eps(a.get("adam_eps", ADAM_EPS))
     weight_decay(a.get("weight_decay"))
     weight_decay_parts(a.get("weight_decay_parts"))
     log_std_lr(a)

@@ -505,6 +505,30 @@ def test_adam_betas_from_the_config_torchs_by_default():
             check_config(compose_cfg(["+exp=bounce_ppo", f"agent.adam_betas={bad}"]))
 
 
+def test_adam_eps_from_the_config_damps_the_step_of_a_quiet_parameter():
+    agent = Agent(("prop",), P, A)
+    assert make_optimizer(compose_cfg(["+exp=bounce_ppo"]), agent).param_groups[0]["eps"] == 1e-8
+    for decay in ("0.0", "1.0"):  # Adam and AdamW both take it
+        cfg = compose_cfg(["+exp=bounce_ppo", "agent.adam_eps=1e-5", f"agent.weight_decay={decay}"])
+        assert {g["eps"] for g in make_optimizer(cfg, agent).param_groups} == {1e-5}
+    # Adam's first step is lr * g / (|g| + eps): a gradient of 1e-5 moves the log-std by
+    # 1e-3 * 1e-5 / (1e-5 + 1e-8) = 1e-3 / 1.001 with torch's eps, by 1e-3 / 2 with eps 1e-5
+    for eps, step in ((1e-8, 1e-3 / 1.001), (1e-5, 0.5e-3)):
+        cfg = compose_cfg(
+            ["+exp=bounce_ppo", "agent.lr=1e-3", f"agent.adam_eps={eps}", "agent.fused_adam=false"]
+        )
+        optimizer = make_optimizer(cfg, agent)
+        log_std = agent.policy_head.log_std
+        before = log_std.detach().clone()
+        optimizer.zero_grad()
+        log_std.grad = torch.full_like(log_std, 1e-5)
+        optimizer.step()
+        torch.testing.assert_close(before - log_std.detach(), torch.full_like(before, step))
+    for bad in ("0", "-1e-5", "small"):
+        with pytest.raises(ValueError, match=r"agent\.adam_eps must be a number > 0, e\.g\. 1e-5"):
+            check_config(compose_cfg(["+exp=bounce_ppo", f"agent.adam_eps={bad}"]))
+
+
 def test_weight_decay_shrinks_the_weight_matrices_by_lr_times_decay_and_nothing_else():
     agent = Agent(("prop",), P, A)
     assert isinstance(make_optimizer(compose_cfg(["+exp=bounce_ppo"]), agent), torch.optim.Adam)  # off

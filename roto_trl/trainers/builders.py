@@ -293,6 +293,16 @@ def adam_betas(value) -> tuple[float, float]:
     return float(pair[0]), float(pair[1])
 
 
+ADAM_EPS = 1e-8  # torch's (and rsl_rl's); CleanRL and OpenAI Baselines' PPO use 1e-5
+
+
+def adam_eps(value) -> float:
+    """``agent.adam_eps`` as Adam's denominator term, a number > 0, or a one-line error."""
+    if not (is_number(value) and value > 0):
+        raise ValueError(f"agent.adam_eps must be a number > 0, e.g. 1e-5, got {value!r}")
+    return float(value)
+
+
 def weight_decay(value) -> float:
     """``agent.weight_decay`` as a float >= 0 (None: 0, off), or a one-line error naming the fix."""
     return non_negative_or_off("agent.weight_decay", value, example="1.0")
@@ -351,7 +361,10 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     ``agent.adam_betas`` (default torch's ``[0.9, 0.999]``) are Adam's moment decays; equal betas
     (e.g. ``[0.99, 0.99]``) are Dohare et al.'s (2023, "Overcoming policy collapse in deep RL")
     remedy for PPO's collapse in long runs: with beta2 > beta1 the second moment lags the first,
-    and a gradient that grows after a quiet stretch takes outsized steps.
+    and a gradient that grows after a quiet stretch takes outsized steps. ``agent.adam_eps``
+    (default torch's 1e-8) is the term added to the second moment's root: a parameter whose
+    gradient's root mean square is near or under it steps less than the learning rate, so a
+    larger eps (CleanRL's 1e-5) damps the steps of parameters whose gradient has gone quiet.
 
     ``agent.weight_decay`` (default 0, off) > 0 makes it AdamW: after each step every weight
     matrix (not the biases, LayerNorm gains or the log-std) shrinks by ``lr * weight_decay`` of
@@ -367,10 +380,11 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     a = _cfg(cfg).agent
     lr, fused = float(a.lr), bool(a.get("fused_adam", True))
     betas = adam_betas(a.get("adam_betas", ADAM_BETAS))  # older runs lack the key: torch's
+    eps = adam_eps(a.get("adam_eps", ADAM_EPS))  # older runs lack the key: torch's
     decay = weight_decay(a.get("weight_decay"))  # older runs lack the key: off
     fixed_log_std = log_std_lr(a)
     if decay == 0.0 and fixed_log_std is None:
-        return torch.optim.Adam(agent.parameters(), lr=lr, betas=betas, fused=fused)
+        return torch.optim.Adam(agent.parameters(), lr=lr, betas=betas, eps=eps, fused=fused)
     log_std = agent.policy_head.log_std
     networks = [p for p in agent.parameters() if p is not log_std]
     groups = [{"params": networks}]  # without decay one group, as checkpoints from before it hold
@@ -394,7 +408,7 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     for group in groups:
         group["base_lr"] = group.get("lr", lr)
     adam = torch.optim.AdamW if decay > 0.0 else torch.optim.Adam
-    return adam(groups, lr=lr, betas=betas, fused=fused)
+    return adam(groups, lr=lr, betas=betas, eps=eps, fused=fused)
 
 
 LR_SCHEDULES = ("fixed", "kl_adaptive")
