@@ -3,6 +3,7 @@
 import pytest
 import torch
 from helpers import hold_pose, random_actions
+from torchrl.envs import Transform
 from torchrl.envs.utils import check_env_specs, step_mdp
 
 from roto_trl import TASKS, make_env
@@ -99,6 +100,38 @@ def test_threads_do_not_change_results():
         states.append(env.base_env.get_state()["qpos"])
         env.close()
     assert torch.equal(states[0], states[1])
+
+
+def test_steps_and_resets_run_torch_on_one_thread_and_restore_the_callers_count():
+    """The env's small tensor ops run on one torch thread (roto_trl/envs/one_thread.py); the
+    policy and update between steps keep the caller's threads."""
+    seen = []
+
+    class CountThreads(Transform):
+        def _step(self, tensordict, next_tensordict):
+            seen.append(("step", torch.get_num_threads()))
+            return next_tensordict
+
+        def _reset(self, tensordict, tensordict_reset):
+            seen.append(("reset", torch.get_num_threads()))
+            return tensordict_reset
+
+    env = make_env("bounce", 4, seed=0)
+    env.append_transform(CountThreads())
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        td = env.reset()
+        assert torch.get_num_threads() == 2
+        for a in random_actions(env, 3):
+            _, td = env.step_and_maybe_reset(td.set("action", a))
+            assert torch.get_num_threads() == 2
+        env.step(td.set("action", random_actions(env, 1)[0]))
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+        env.close()
+    assert seen == [("reset", 1), *[("step", 1)] * 4]
 
 
 def test_truncation_at_600_steps():

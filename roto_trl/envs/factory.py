@@ -6,11 +6,12 @@ import dataclasses
 import os
 
 import torch
-from torchrl.envs import CatFrames, CatTensors, Compose, TransformedEnv
+from torchrl.envs import CatFrames, CatTensors, Compose
 
 from roto_trl.envs.baoding import BaodingEnv
 from roto_trl.envs.bounce import BounceEnv
 from roto_trl.envs.find import FindEnv
+from roto_trl.envs.one_thread import OneThreadTransformedEnv
 from roto_trl.transforms import BinariseContacts, LastAction, ScaleProprioception
 
 # task name -> env class (its CONFIG, SENSORS, VEL_SCALE and PROP_EXTRA say the rest)
@@ -82,7 +83,7 @@ def make_env(
     device: str | torch.device = "cpu",
     last_action: bool = True,
     **overrides,
-) -> TransformedEnv:
+) -> OneThreadTransformedEnv:
     """Build a batched RoTO task with the agent's observation pipeline.
 
     Args:
@@ -96,8 +97,10 @@ def make_env(
             ``action_ema=0.5``, ``contact_threshold=0.1``, ``reward_scales={"air": 0.0}``.
 
     Returns:
-        A ``TransformedEnv`` whose policy inputs are ``"prop"`` (float32 ``[N, k*P]``: last action,
-        scaled joint angles and velocities, oldest reading first) and ``"tactile"`` (float32 0/1
+        A ``TransformedEnv`` (``OneThreadTransformedEnv``: its steps and resets run torch on one
+        thread, which makes their small operations cheaper) whose policy inputs are ``"prop"``
+        (float32 ``[N, k*P]``: last action, scaled joint angles and velocities, oldest reading
+        first) and ``"tactile"`` (float32 0/1
         ``[N, k*T]``), with ``"contact_force"``, ``"state"``, the task's episode metric and
         ``"reward_terms"`` alongside. The base env is ``env.base_env`` (``.mj_model``).
     """
@@ -107,7 +110,7 @@ def make_env(
     check_memory(task, num_envs, config.history)
     base = TASKS[task](num_envs, config, seed=seed, device=device)
     parts = PROP_PARTS if last_action else PROP_PARTS[1:]
-    return TransformedEnv(
+    return OneThreadTransformedEnv(
         base,
         Compose(
             *([LastAction(base.n_actions)] if last_action else []),
