@@ -13,9 +13,9 @@ the encoder runs once per minibatch and receives every loss's gradient through t
 from __future__ import annotations
 
 import torch
-from tensordict.nn import TensorDictModule, TensorDictSequential
+from tensordict.nn import TensorDictSequential
 from torch import nn
-from torchrl.modules import ActorValueOperator, ProbabilisticActor, ValueOperator
+from torchrl.modules import ActorValueOperator, ProbabilisticActor
 
 from roto_trl.modules.distributions import (
     DEFAULT_ACTION_LOG_PROB,
@@ -25,6 +25,7 @@ from roto_trl.modules.distributions import (
 )
 from roto_trl.modules.networks import ENCODER_SIZES, Encoder, PolicyHead, ValueHead
 from roto_trl.modules.normalization import ValueNormalizer
+from roto_trl.modules.tensor_writes import TensorModule, TensorValueOperator
 
 LATENT_KEY = "z"
 ROLLOUT_LATENT_KEY = "z_rollout"  # a minibatch's acting-time latent, kept while the update writes z
@@ -105,9 +106,9 @@ class Agent(nn.Module):
         self.value_head = ValueHead((self.encoder if shared_encoder else value_encoder).latent_dim)
         self.value_norm = ValueNormalizer(enabled=value_norm)
         # observation entries -> z: the encoder as the self-supervised losses take it
-        self.common = TensorDictModule(self.encoder, in_keys=list(self.obs_keys), out_keys=[LATENT_KEY])
+        self.common = TensorModule(self.encoder, in_keys=list(self.obs_keys), out_keys=[LATENT_KEY])
         self.actor_head = ProbabilisticActor(
-            TensorDictModule(self.policy_head, in_keys=[LATENT_KEY], out_keys=["loc", "scale"]),
+            TensorModule(self.policy_head, in_keys=[LATENT_KEY], out_keys=["loc", "scale"]),
             in_keys=["loc", "scale"],
             distribution_class=ClippedActionNormal,
             distribution_kwargs=policy_distribution_kwargs(deterministic_action, action_log_prob),
@@ -116,13 +117,13 @@ class Agent(nn.Module):
         self.deterministic_action = deterministic_action
         self.shared_encoder = bool(shared_encoder)
         if self.shared_encoder:  # the paper's agent: the value head reads the policy's z
-            self.critic_head = ValueOperator(self.value_head, in_keys=[LATENT_KEY])
+            self.critic_head = TensorValueOperator(self.value_head, in_keys=[LATENT_KEY])
             self.actor_critic = ActorValueOperator(self.common, self.actor_head, self.critic_head)
             self.policy = self.actor_critic.get_policy_operator()
             self.value = self.actor_critic.get_value_operator()
         else:  # the critic has an encoder of its own; SSL trains the policy's
             self.value_encoder = value_encoder
-            self.critic_head = ValueOperator(
+            self.critic_head = TensorValueOperator(
                 Critic(self.value_encoder, self.value_head), in_keys=list(self.obs_keys)
             )
             self.policy = TensorDictSequential(self.common, self.actor_head)
