@@ -100,9 +100,9 @@ def make_env(
         A ``TransformedEnv`` (``OneThreadTransformedEnv``: its steps and resets run torch on one
         thread, which makes their small operations cheaper) whose policy inputs are ``"prop"``
         (float32 ``[N, k*P]``: last action, scaled joint angles and velocities, oldest reading
-        first) and ``"tactile"`` (float32 0/1
-        ``[N, k*T]``), with ``"contact_force"``, ``"state"``, the task's episode metric and
-        ``"reward_terms"`` alongside. The base env is ``env.base_env`` (``.mj_model``).
+        first) and ``"tactile"`` (float32 0/1 ``[N, k*T]``), with ``"contact_force"``,
+        ``"state"``, the task's episode metric and ``"reward_terms"`` alongside. The base env is
+        ``env.base_env`` (``.mj_model``).
     """
     if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
