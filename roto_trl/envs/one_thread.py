@@ -6,9 +6,10 @@ larger ones (``CatFrames``' roll, clones) hand work to torch's OpenMP team, whos
 gone to sleep while MuJoCo's own threads ran the physics: waking them costs more than the
 operation. Measured on the 2-core machine (256 worlds, two physics threads, random actions,
 ``benchmarks/env_throughput.py``, alternating runs): with two torch threads Bounce's env ran at
-0.71-0.72 of raw ``mujoco.rollout``, with one at 0.79-0.81; Find 0.55 and 0.69-0.73. The physics keeps its own threads
-(``num_threads`` of the task config), and the policy and the update keep torch's: the thread
-count is lowered only for the duration of each call and restored after it.
+0.71-0.72 of raw ``mujoco.rollout``, with one at 0.79-0.81; Find 0.55 and 0.69-0.73. The
+physics keeps its own threads (``num_threads`` of the task config), and the policy and the
+update keep torch's: the thread count is lowered only for the duration of each call and
+restored after it.
 """
 
 from __future__ import annotations
