@@ -40,7 +40,9 @@ class OneThreadTransformedEnv(TransformedEnv):
     """``TransformedEnv`` whose ``step``, ``reset`` and ``step_and_maybe_reset`` use one torch thread.
 
     Everything else (specs, transforms, ``rollout``, whose policy calls run between steps with the
-    caller's threads) is ``TransformedEnv``'s.
+    caller's threads) is ``TransformedEnv``'s. Add transforms with ``append_transform``, which
+    keeps this class; wrapped in another ``TransformedEnv`` the outer env calls this one's private
+    ``_step`` and runs with the caller's threads (the same results, only slower).
     """
 
     def step(self, tensordict: TensorDictBase) -> TensorDictBase:
