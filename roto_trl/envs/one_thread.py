@@ -26,9 +26,6 @@ from torchrl.envs import TransformedEnv
 def one_torch_thread() -> Iterator[None]:
     """Run the body with ``torch.set_num_threads(1)``; restore the caller's count after it."""
     before = torch.get_num_threads()
-    if before == 1:
-        yield
-        return
     torch.set_num_threads(1)
     try:
         yield
