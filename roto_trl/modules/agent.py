@@ -80,6 +80,9 @@ class Agent(nn.Module):
         critic_encoder_sizes: the layer sizes of the critic's own encoder (``shared_encoder``
             False only); None: the policy encoder's ``ENCODER_SIZES``. A smaller critic makes
             the update cheaper: at the default sizes the critic's encoder is nearly half of it.
+        precision: the hidden layers' arithmetic, ``float32`` or ``bfloat16`` (autocast; weights,
+            gradients' sums, the optimiser and the output layers stay float32); see
+            ``roto_trl.modules.networks.hidden_precision``.
     """
 
     def __init__(
@@ -93,17 +96,18 @@ class Agent(nn.Module):
         value_norm: bool = True,
         critic_encoder_sizes: tuple[int, ...] | None = None,
         action_log_prob: str = DEFAULT_ACTION_LOG_PROB,
+        precision: str = "float32",
     ) -> None:
         super().__init__()
         critic_encoder_sizes = checked_critic_sizes(critic_encoder_sizes, shared_encoder)
         self.obs_keys = tuple(obs_keys)
         self.n_actions = int(n_actions)
-        self.encoder = Encoder(obs_dim)
-        self.policy_head = PolicyHead(self.encoder.latent_dim, n_actions, init_log_std)
+        self.encoder = Encoder(obs_dim, precision=precision)
+        self.policy_head = PolicyHead(self.encoder.latent_dim, n_actions, init_log_std, precision)
         # the critic's own encoder is registered after the policy's modules, as before the option,
         # so that the optimiser's parameter order (and a resumed run's Adam state) is unchanged
-        value_encoder = None if shared_encoder else Encoder(obs_dim, critic_encoder_sizes)
-        self.value_head = ValueHead((self.encoder if shared_encoder else value_encoder).latent_dim)
+        value_encoder = None if shared_encoder else Encoder(obs_dim, critic_encoder_sizes, precision)
+        self.value_head = ValueHead((self.encoder if shared_encoder else value_encoder).latent_dim, precision)
         self.value_norm = ValueNormalizer(enabled=value_norm)
         # observation entries -> z: the encoder as the self-supervised losses take it
         self.common = TensorModule(self.encoder, in_keys=list(self.obs_keys), out_keys=[LATENT_KEY])

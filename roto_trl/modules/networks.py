@@ -5,12 +5,38 @@ Plain ``nn.Module``s over tensors; ``roto_trl.modules.agent`` wraps them as Torc
 
 from __future__ import annotations
 
+import contextlib
+import warnings
+
 import torch
 from torch import nn
 
 ENCODER_SIZES = (1024, 512, 256)
 HEAD_SIZES = (128, 64)
 LOG_STD_RANGE = (-20.0, 2.0)  # the authors' clamp of the policy's log standard deviation
+PRECISIONS = ("float32", "bfloat16")  # the hidden layers' arithmetic (``hidden_precision``)
+
+
+def checked_precision(precision: str) -> str:
+    """``precision`` if it is one of ``PRECISIONS``, else a one-line error; warns when bfloat16
+    would run on a CPU without bfloat16 arithmetic (AVX512-BF16 or AMX), where it is slower."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"agent.precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    if precision == "bfloat16" and not (torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported()):
+        warnings.warn(
+            "agent.precision=bfloat16 on a CPU without AVX512-BF16 or AMX: its matrix products are "
+            "emulated and slower than float32; set agent.precision=float32",
+            stacklevel=2,
+        )
+    return precision
+
+
+def hidden_precision(precision: str, device: torch.device) -> contextlib.AbstractContextManager:
+    """The context the hidden layers run in: bfloat16 autocast (matrix products, LayerNorm and ELU
+    in bfloat16, float32 weights and optimiser), or nothing for float32."""
+    if precision == "bfloat16":
+        return torch.autocast(device.type, dtype=torch.bfloat16)
+    return contextlib.nullcontext()
 
 
 def mlp(in_dim: int, sizes: tuple[int, ...], *, layer_norm: bool) -> nn.Sequential:
@@ -29,41 +55,51 @@ class Encoder(nn.Module):
     """Observation -> latent ``z``: o -> 1024 -> 512 -> 256, LayerNorm + ELU after each layer.
 
     ``forward(*parts)`` takes the observation parts (``prop`` ``[*B, k*P]``, optionally
-    ``tactile`` ``[*B, k*T]``), concatenates them and returns ``z`` ``[*B, 256]``.
+    ``tactile`` ``[*B, k*T]``), concatenates them and returns ``z`` ``[*B, 256]`` in float32
+    (computed in ``precision``, see ``hidden_precision``).
     """
 
-    def __init__(self, obs_dim: int, sizes: tuple[int, ...] = ENCODER_SIZES) -> None:
+    def __init__(self, obs_dim: int, sizes: tuple[int, ...] = ENCODER_SIZES, precision: str = "float32") -> None:
         super().__init__()
         self.obs_dim = int(obs_dim)
         self.net = mlp(self.obs_dim, tuple(sizes), layer_norm=True)
         self.latent_dim = int(sizes[-1])
+        self.precision = checked_precision(precision)
 
     def forward(self, *parts: torch.Tensor) -> torch.Tensor:
         obs = parts[0] if len(parts) == 1 else torch.cat(parts, dim=-1)
         if obs.shape[-1] != self.obs_dim:
             raise ValueError(f"encoder expects {self.obs_dim} observation features, got {obs.shape[-1]}")
-        return self.net(obs)
+        with hidden_precision(self.precision, obs.device):
+            return self.net(obs).float()
 
 
 class PolicyHead(nn.Module):
     """``z`` -> (loc, scale) of a diagonal Gaussian: z -> 128 -> 64 -> n_actions, ELU, tanh mean.
 
     The log standard deviation is a learned vector independent of the state, clamped to
-    ``LOG_STD_RANGE`` (no gradient pushes it further once it sits at a bound).
+    ``LOG_STD_RANGE`` (no gradient pushes it further once it sits at a bound). The hidden layers
+    run in ``precision``; the output layer always in float32, so that the mean PPO's ratio reads
+    is not rounded to bfloat16's 8 bits.
 
     Returns:
         ``loc`` ``[*B, n_actions]`` in (-1, 1) and ``scale`` ``[*B, n_actions]`` > 0.
     """
 
-    def __init__(self, latent_dim: int, n_actions: int, init_log_std: float = 0.0) -> None:
+    def __init__(
+        self, latent_dim: int, n_actions: int, init_log_std: float = 0.0, precision: str = "float32"
+    ) -> None:
         super().__init__()
         self.body = mlp(latent_dim, HEAD_SIZES, layer_norm=False)
         self.mean = nn.Linear(HEAD_SIZES[-1], n_actions)
         self.log_std = nn.Parameter(torch.full((n_actions,), float(init_log_std)))
+        self.precision = checked_precision(precision)
 
     def preactivation(self, z: torch.Tensor) -> torch.Tensor:
         """The mean before its tanh ``[*B, n_actions]`` (``PolicyMeanBoundLoss`` bounds it)."""
-        return self.mean(self.body(z))
+        with hidden_precision(self.precision, z.device):
+            hidden = self.body(z)
+        return self.mean(hidden.float())
 
     def forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         loc = torch.tanh(self.preactivation(z))
@@ -71,11 +107,16 @@ class PolicyHead(nn.Module):
 
 
 class ValueHead(nn.Module):
-    """``z`` -> normalised state value ``[*B, 1]``: z -> 128 -> 64 -> 1, ELU."""
+    """``z`` -> normalised state value ``[*B, 1]``: z -> 128 -> 64 -> 1, ELU (hidden layers in
+    ``precision``, the output layer in float32)."""
 
-    def __init__(self, latent_dim: int) -> None:
+    def __init__(self, latent_dim: int, precision: str = "float32") -> None:
         super().__init__()
         self.net = nn.Sequential(mlp(latent_dim, HEAD_SIZES, layer_norm=False), nn.Linear(HEAD_SIZES[-1], 1))
+        self.precision = checked_precision(precision)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
-        return self.net(z)
+        body, out = self.net
+        with hidden_precision(self.precision, z.device):
+            hidden = body(z)
+        return out(hidden.float())

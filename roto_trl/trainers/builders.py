@@ -101,6 +101,7 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
         value_norm=bool(cfg.agent.get("value_norm", True)),  # runs from before the option: on
         critic_encoder_sizes=cfg.agent.get("critic_encoder_sizes"),  # null: the policy encoder's
         action_log_prob=str(cfg.agent.get("action_log_prob", DEFAULT_ACTION_LOG_PROB)),  # old runs: gaussian
+        precision=str(cfg.agent.get("precision", "float32")),  # runs from before the option: float32
     )
     return agent.to(cfg.device)
 
