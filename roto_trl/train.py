@@ -45,6 +45,7 @@ from roto_trl.modules.distributions import (
     DEFAULT_DETERMINISTIC_ACTION,
     policy_distribution_kwargs,
 )
+from roto_trl.modules.networks import checked_precision, cpu_has_bfloat16
 from roto_trl.objectives.mean_bound import checked_mean_bound
 from roto_trl.objectives.proximal_feature import checked_feature_coeff
 from roto_trl.trainers.builders import (
@@ -159,6 +160,13 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"seed must be an integer, got {cfg.seed!r}")
     task_config(cfg.env.task, **OmegaConf.to_container(cfg.env.overrides))  # names a bad env.overrides key
     checked_critic_sizes(cfg.agent.get("critic_encoder_sizes"), bool(cfg.agent.shared_encoder))
+    precision = checked_precision(str(a.get("precision", "float32")))  # runs from before the option: float32
+    if precision == "bfloat16" and torch.device(str(cfg.device)).type == "cpu" and not cpu_has_bfloat16():
+        print(
+            "warning: agent.precision=bfloat16 on a CPU without AVX512-BF16 or AMX: torch emulates its "
+            "matrix products, slower than float32; set agent.precision=float32",
+            file=sys.stderr,
+        )
 
 
 def check_device(device) -> None:
