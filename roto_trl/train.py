@@ -151,6 +151,17 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"agent.anneal_step_size must be true or false, got {a.anneal_step_size!r}")
     if cfg.logger.backend not in BACKENDS:
         raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
+    precision = checked_precision(str(a.get("precision", "float32")))  # runs from before the option: float32
+    if precision == "bfloat16" and torch.device(str(cfg.device)).type != "cpu":
+        raise ValueError(
+            "agent.precision=bfloat16 rounds oneDNN's CPU matrix products; with device=cuda use float32"
+        )
+    if precision == "bfloat16" and not cpu_has_bfloat16():
+        print(
+            "warning: agent.precision=bfloat16 on a CPU without AVX512-BF16 or AMX: torch emulates its "
+            "matrix products, slower than float32; set agent.precision=float32",
+            file=sys.stderr,
+        )
     check_device(cfg.device)
     positive_int_or_null("torch_threads", cfg.torch_threads)
     interval = cfg.checkpoint.interval_minutes
@@ -160,13 +171,6 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"seed must be an integer, got {cfg.seed!r}")
     task_config(cfg.env.task, **OmegaConf.to_container(cfg.env.overrides))  # names a bad env.overrides key
     checked_critic_sizes(cfg.agent.get("critic_encoder_sizes"), bool(cfg.agent.shared_encoder))
-    precision = checked_precision(str(a.get("precision", "float32")))  # runs from before the option: float32
-    if precision == "bfloat16" and torch.device(str(cfg.device)).type == "cpu" and not cpu_has_bfloat16():
-        print(
-            "warning: agent.precision=bfloat16 on a CPU without AVX512-BF16 or AMX: torch emulates its "
-            "matrix products, slower than float32; set agent.precision=float32",
-            file=sys.stderr,
-        )
 
 
 def check_device(device) -> None:

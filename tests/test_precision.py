@@ -33,7 +33,8 @@ def outputs(agent, obs: torch.Tensor):
     agent.zero_grad()
     loc = agent.policy(TensorDict({"prop": obs}, obs.shape[:1]))["loc"]
     value = agent.value(TensorDict({"prop": obs}, obs.shape[:1]))["state_value"]
-    (loc.square().sum() + value.square().sum()).backward()
+    with hidden_precision(agent.encoder.precision):  # as minibatch_step
+        (loc.square().sum() + value.square().sum()).backward()
     grads = torch.cat([p.grad.flatten() for p in agent.parameters() if p.grad is not None])
     return loc, value, grads
 
@@ -45,8 +46,9 @@ def test_bfloat16_hidden_layers_give_float32_outputs_near_float32s(shared):
     loc32, value32, grads32 = outputs(fp32, obs)
     loc16, value16, grads16 = outputs(bf16, obs)
     assert loc16.dtype == value16.dtype == grads16.dtype == torch.float32
-    assert not torch.equal(loc16, loc32)  # the hidden layers did run in bfloat16
-    # bfloat16 keeps 8 bits: ~0.4 % per product, averaged over each layer's sums
+    assert torch.backends.mkldnn.matmul.fp32_precision == "none"  # restored after the forward
+    assert not torch.equal(loc16, loc32)  # the hidden layers did multiply in bfloat16
+    # bfloat16 keeps 8 bits: ~0.4 % per factor, averaged over each layer's sums
     assert (loc16 - loc32).abs().max() < 2e-2
     assert (value16 - value32).abs().max() < 2e-2 * value32.abs().max() + 1e-3
     cosine = torch.nn.functional.cosine_similarity(grads16, grads32, dim=0)
@@ -54,13 +56,13 @@ def test_bfloat16_hidden_layers_give_float32_outputs_near_float32s(shared):
     assert all(p.dtype == torch.float32 for p in bf16.parameters())
 
 
-def test_the_output_layers_run_in_float32_and_the_hidden_ones_in_bfloat16():
+def test_the_hidden_layers_and_the_backward_multiply_in_bfloat16_and_the_output_layers_in_float32():
     _, agent = agents(shared=True)
     seen = {}
 
     def record(name):
-        def hook(module, args, out):
-            seen[name] = (args[0].dtype, out.dtype)
+        def hook(module, *_):
+            seen[name] = torch.backends.mkldnn.matmul.fp32_precision
 
         return hook
 
@@ -68,21 +70,31 @@ def test_the_output_layers_run_in_float32_and_the_hidden_ones_in_bfloat16():
     agent.policy_head.body[0].register_forward_hook(record("policy hidden layer"))
     agent.policy_head.mean.register_forward_hook(record("policy output layer"))
     agent.value_head.net[1].register_forward_hook(record("value output layer"))
-    agent.policy(observations(8))
-    agent.value(observations(8))
-    assert seen["first encoder layer"][1] == torch.bfloat16
-    assert seen["policy hidden layer"][1] == torch.bfloat16
-    assert seen["policy output layer"] == (torch.float32, torch.float32)
-    assert seen["value output layer"] == (torch.float32, torch.float32)
+    agent.encoder.net[0].weight.register_hook(lambda grad: record("backward")(None))
+    td = agent.policy(observations(8))
+    value = agent.value(observations(8))["state_value"]
+    assert seen == {
+        "first encoder layer": "bf16",
+        "policy hidden layer": "bf16",
+        "policy output layer": "none",
+        "value output layer": "none",
+    }
+    before = torch.backends.mkldnn.matmul.fp32_precision
+    with hidden_precision("bfloat16"):  # as minibatch_step runs the backward
+        (td["loc"].sum() + value.sum()).backward()
+    assert seen["backward"] == "bf16"
+    assert torch.backends.mkldnn.matmul.fp32_precision == before == "none"
 
 
-def test_float32_runs_no_autocast_and_the_checkpoint_keys_are_the_same():
+def test_float32_changes_nothing_and_bfloat16_restores_the_setting_after_an_error():
     fp32, bf16 = agents(shared=False)
     assert fp32.state_dict().keys() == bf16.state_dict().keys()
-    with hidden_precision("float32", torch.device("cpu")):
-        assert not torch.is_autocast_enabled("cpu")
-    with hidden_precision("bfloat16", torch.device("cpu")):
-        assert torch.get_autocast_dtype("cpu") == torch.bfloat16 and torch.is_autocast_enabled("cpu")
+    with hidden_precision("float32"):
+        assert torch.backends.mkldnn.matmul.fp32_precision == "none"
+    with pytest.raises(RuntimeError, match="inside"), hidden_precision("bfloat16"):
+        assert torch.backends.mkldnn.matmul.fp32_precision == "bf16"
+        raise RuntimeError("inside")
+    assert torch.backends.mkldnn.matmul.fp32_precision == "none"
 
 
 def test_a_bad_precision_is_a_one_line_error():
@@ -90,6 +102,8 @@ def test_a_bad_precision_is_a_one_line_error():
         Agent(("prop",), P, A, precision="float16")
     with pytest.raises(ValueError, match=r"agent\.precision must be one of"):
         check_config(compose_cfg(["+exp=bounce_ppo", "agent.precision=fp16"]))
+    with pytest.raises(ValueError, match="with device=cuda use float32"):
+        check_config(compose_cfg(["+exp=bounce_ppo", "agent.precision=bfloat16", "device=cuda"]))
 
 
 def test_a_bfloat16_run_trains_evaluates_and_its_checkpoint_reloads(tmp_path):

@@ -6,6 +6,7 @@ Plain ``nn.Module``s over tensors; ``roto_trl.modules.agent`` wraps them as Torc
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Iterator
 
 import torch
 from torch import nn
@@ -29,16 +30,27 @@ def cpu_has_bfloat16() -> bool:
     return torch.cpu._is_avx512_bf16_supported() or torch.cpu._is_amx_tile_supported()
 
 
-def hidden_precision(precision: str, device: torch.device) -> contextlib.AbstractContextManager:
-    """The context the hidden layers run in: bfloat16 autocast (matrix products, LayerNorm and ELU
-    in bfloat16, float32 weights and optimiser), or nothing for float32.
+@contextlib.contextmanager
+def bfloat16_products() -> Iterator[None]:
+    """float32 matrix products computed by oneDNN in bfloat16 (both factors rounded to bfloat16's
+    8 bits, sums and results in float32) inside the block; everything else stays float32."""
+    before = torch.backends.mkldnn.matmul.fp32_precision
+    torch.backends.mkldnn.matmul.fp32_precision = "bf16"
+    try:
+        yield
+    finally:
+        torch.backends.mkldnn.matmul.fp32_precision = before
 
-    On an AMX CPU bfloat16 trains ``bounce_ppo`` 1.5x as fast, but its policies ended lower on
-    all 6 seeds tried (docs/results_cpu.md, Bounce): float32 is the default.
+
+def hidden_precision(precision: str) -> contextlib.AbstractContextManager:
+    """The context the hidden layers (and the update's backward, ``minibatch_step``) run in:
+    ``bfloat16_products`` for bfloat16, nothing for float32.
+
+    Only the products' factors are rounded; activations, LayerNorm, weights and the optimiser
+    stay float32. Autocast, which also keeps the activations and LayerNorm in bfloat16, trained
+    ``bounce_ppo`` as fast but ended lower on all 6 seeds (docs/results_cpu.md, Bounce).
     """
-    if precision == "bfloat16":
-        return torch.autocast(device.type, dtype=torch.bfloat16)
-    return contextlib.nullcontext()
+    return bfloat16_products() if precision == "bfloat16" else contextlib.nullcontext()
 
 
 def mlp(in_dim: int, sizes: tuple[int, ...], *, layer_norm: bool) -> nn.Sequential:
@@ -58,7 +70,7 @@ class Encoder(nn.Module):
 
     ``forward(*parts)`` takes the observation parts (``prop`` ``[*B, k*P]``, optionally
     ``tactile`` ``[*B, k*T]``), concatenates them and returns ``z`` ``[*B, 256]`` in float32
-    (computed in ``precision``, see ``hidden_precision``).
+    (its products computed in ``precision``, see ``hidden_precision``).
     """
 
     def __init__(
@@ -74,17 +86,17 @@ class Encoder(nn.Module):
         obs = parts[0] if len(parts) == 1 else torch.cat(parts, dim=-1)
         if obs.shape[-1] != self.obs_dim:
             raise ValueError(f"encoder expects {self.obs_dim} observation features, got {obs.shape[-1]}")
-        with hidden_precision(self.precision, obs.device):
-            return self.net(obs).float()
+        with hidden_precision(self.precision):
+            return self.net(obs)
 
 
 class PolicyHead(nn.Module):
     """``z`` -> (loc, scale) of a diagonal Gaussian: z -> 128 -> 64 -> n_actions, ELU, tanh mean.
 
     The log standard deviation is a learned vector independent of the state, clamped to
-    ``LOG_STD_RANGE`` (no gradient pushes it further once it sits at a bound). The hidden layers
-    run in ``precision``; the output layer always in float32, so that the mean PPO's ratio reads
-    is not rounded to bfloat16's 8 bits.
+    ``LOG_STD_RANGE`` (no gradient pushes it further once it sits at a bound). The hidden layers'
+    products run in ``precision``; the output layer's always in float32, so that the mean PPO's
+    ratio reads does not come from factors rounded to bfloat16's 8 bits.
 
     Returns:
         ``loc`` ``[*B, n_actions]`` in (-1, 1) and ``scale`` ``[*B, n_actions]`` > 0.
@@ -101,9 +113,9 @@ class PolicyHead(nn.Module):
 
     def preactivation(self, z: torch.Tensor) -> torch.Tensor:
         """The mean before its tanh ``[*B, n_actions]`` (``PolicyMeanBoundLoss`` bounds it)."""
-        with hidden_precision(self.precision, z.device):
+        with hidden_precision(self.precision):
             hidden = self.body(z)
-        return self.mean(hidden.float())
+        return self.mean(hidden)
 
     def forward(self, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         loc = torch.tanh(self.preactivation(z))
@@ -111,8 +123,8 @@ class PolicyHead(nn.Module):
 
 
 class ValueHead(nn.Module):
-    """``z`` -> normalised state value ``[*B, 1]``: z -> 128 -> 64 -> 1, ELU (hidden layers in
-    ``precision``, the output layer in float32)."""
+    """``z`` -> normalised state value ``[*B, 1]``: z -> 128 -> 64 -> 1, ELU (the hidden layers'
+    products in ``precision``, the output layer's in float32)."""
 
     def __init__(self, latent_dim: int, precision: str = "float32") -> None:
         super().__init__()
@@ -121,6 +133,6 @@ class ValueHead(nn.Module):
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         body, out = self.net
-        with hidden_precision(self.precision, z.device):
+        with hidden_precision(self.precision):
             hidden = body(z)
-        return out(hidden.float())
+        return out(hidden)

@@ -11,6 +11,7 @@ from tensordict.utils import NestedKey
 from torchrl.objectives import LossModule
 
 from roto_trl.modules.agent import LATENT_KEY, ROLLOUT_LATENT_KEY, Agent
+from roto_trl.modules.networks import hidden_precision
 from roto_trl.objectives.mean_bound import SATURATED
 from roto_trl.objectives.proximal_feature import ProximalFeatureLoss
 from roto_trl.trainers.errors import NonFiniteError
@@ -141,7 +142,8 @@ def minibatch_step(
 ):
     """One update on ``minibatch`` (and ``aux_data``, an auxiliary minibatch or None): the backward
     of ``minibatch_loss``, the gradient norm of ``params`` clipped to ``max_grad_norm``, the PPO
-    optimiser's step and, with auxiliary data, the auxiliary one's.
+    optimiser's step and, with auxiliary data, the auxiliary one's. Under ``agent.precision=bfloat16``
+    every product of the backward runs in bfloat16 (``hidden_precision``).
 
     Returns ``ClipPPOLoss``'s output, the gradient norm before clipping and the auxiliary numbers
     (None without auxiliary data); a ``NonFiniteError`` for a non-finite loss or gradient.
@@ -150,7 +152,8 @@ def minibatch_step(
     optimizer.zero_grad(set_to_none=True)
     if aux is not None:
         aux.zero_grad()
-    total.backward()
+    with hidden_precision(agent.encoder.precision):  # the backward's products as the forward's
+        total.backward()
     grad_norm = torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
     if not bool(torch.isfinite(total) and torch.isfinite(grad_norm)):
         bad = [k for k, v in losses.items() if k.startswith("loss_") and not torch.isfinite(v).all()]
