@@ -80,9 +80,9 @@ class Agent(nn.Module):
         critic_encoder_sizes: the layer sizes of the critic's own encoder (``shared_encoder``
             False only); None: the policy encoder's ``ENCODER_SIZES``. A smaller critic makes
             the update cheaper: at the default sizes the critic's encoder is nearly half of it.
-        precision: the hidden layers' arithmetic, ``float32`` or ``bfloat16`` (autocast; weights,
-            gradients' sums, the optimiser and the output layers stay float32); see
-            ``roto_trl.modules.networks.hidden_precision``.
+        precision: the hidden layers' matrix products, ``float32`` or ``bfloat16`` (factors
+            rounded to bfloat16, sums in float32; activations, weights, the optimiser and the
+            output layers' forward stay float32); see ``roto_trl.modules.networks.hidden_precision``.
     """
 
     def __init__(
