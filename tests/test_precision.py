@@ -1,5 +1,6 @@
-"""``agent.precision``: the networks' hidden layers in bfloat16, their outputs and parameters in
-float32, the same checkpoint keys, and a run that trains, evaluates and reloads with it."""
+"""``agent.precision``: the networks' hidden layers' products in bfloat16, their outputs and
+parameters in float32, the same checkpoint keys, and a run that trains, evaluates and reloads
+with it."""
 
 import pytest
 import torch
@@ -7,7 +8,7 @@ from helpers import TINY, compose_cfg
 from tensordict import TensorDict
 
 from roto_trl.modules.agent import Agent
-from roto_trl.modules.networks import hidden_precision
+from roto_trl.modules.networks import cpu_has_bfloat16, hidden_precision
 from roto_trl.train import check_config, train
 from roto_trl.trainers.checkpoint import LATEST, load_checkpoint
 
@@ -47,7 +48,8 @@ def test_bfloat16_hidden_layers_give_float32_outputs_near_float32s(shared):
     loc16, value16, grads16 = outputs(bf16, obs)
     assert loc16.dtype == value16.dtype == grads16.dtype == torch.float32
     assert torch.backends.mkldnn.matmul.fp32_precision == "none"  # restored after the forward
-    assert not torch.equal(loc16, loc32)  # the hidden layers did multiply in bfloat16
+    if cpu_has_bfloat16():  # elsewhere oneDNN may keep float32 products
+        assert not torch.equal(loc16, loc32)  # the hidden layers did multiply in bfloat16
     # bfloat16 keeps 8 bits: ~0.4 % per factor, averaged over each layer's sums
     assert (loc16 - loc32).abs().max() < 2e-2
     assert (value16 - value32).abs().max() < 2e-2 * value32.abs().max() + 1e-3
