@@ -152,9 +152,10 @@ def check_config(cfg: DictConfig) -> None:
     if cfg.logger.backend not in BACKENDS:
         raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
     precision = checked_precision(str(a.get("precision", "float32")))  # runs from before the option: float32
-    if precision == "bfloat16" and torch.device(str(cfg.device)).type != "cpu":
+    if precision == "bfloat16" and str(cfg.device).split(":")[0] != "cpu":  # before check_device parses it
         raise ValueError(
-            "agent.precision=bfloat16 rounds oneDNN's CPU matrix products; with device=cuda use float32"
+            "agent.precision=bfloat16 rounds oneDNN's CPU matrix products; "
+            f"with device={cfg.device} use float32"
         )
     if precision == "bfloat16" and not cpu_has_bfloat16():
         print(

@@ -104,8 +104,9 @@ def test_a_bad_precision_is_a_one_line_error():
         Agent(("prop",), P, A, precision="float16")
     with pytest.raises(ValueError, match=r"agent\.precision must be one of"):
         check_config(compose_cfg(["+exp=bounce_ppo", "agent.precision=fp16"]))
-    with pytest.raises(ValueError, match="with device=cuda use float32"):
-        check_config(compose_cfg(["+exp=bounce_ppo", "agent.precision=bfloat16", "device=cuda"]))
+    for device in ("cuda", "tpu"):  # a one-line error, also before the device itself is checked
+        with pytest.raises(ValueError, match=f"with device={device} use float32"):
+            check_config(compose_cfg(["+exp=bounce_ppo", "agent.precision=bfloat16", f"device={device}"]))
 
 
 def test_a_bfloat16_run_trains_evaluates_and_its_checkpoint_reloads(tmp_path):
