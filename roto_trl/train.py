@@ -45,7 +45,7 @@ from roto_trl.modules.distributions import (
     DEFAULT_DETERMINISTIC_ACTION,
     policy_distribution_kwargs,
 )
-from roto_trl.modules.networks import checked_precision, cpu_has_bfloat16
+from roto_trl.modules.networks import cpu_has_bfloat16
 from roto_trl.objectives.mean_bound import checked_mean_bound
 from roto_trl.objectives.proximal_feature import checked_feature_coeff
 from roto_trl.trainers.builders import (
@@ -55,6 +55,8 @@ from roto_trl.trainers.builders import (
     adam_eps,
     advantage_norm_scope,
     agent_for_env,
+    agent_precision,
+    apply_precision,
     apply_rollout_floor,
     compile_agent,
     eval_seed,
@@ -151,7 +153,7 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"agent.anneal_step_size must be true or false, got {a.anneal_step_size!r}")
     if cfg.logger.backend not in BACKENDS:
         raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
-    precision = checked_precision(str(a.get("precision", "float32")))  # runs from before the option: float32
+    precision = agent_precision(cfg)
     if precision == "bfloat16" and str(cfg.device).split(":")[0] != "cpu":  # before check_device parses it
         raise ValueError(
             "agent.precision=bfloat16 rounds oneDNN's CPU matrix products; "
@@ -291,6 +293,7 @@ def train(cfg: DictConfig, overrides: Sequence[str] = ()) -> Path:
     """
     check_config(cfg)
     apply_rollout_floor(cfg)  # the CPU profile's minimum steps per rollout
+    apply_precision(cfg)  # auto -> float32 or bfloat16, saved as such
     logging.getLogger("torchrl").setLevel(logging.WARNING)  # its storage notices are not progress
     cfg, run_dir, resumed, lock = prepare_run(cfg, overrides)
     try:

@@ -5,10 +5,11 @@ with it."""
 import pytest
 import torch
 from helpers import TINY, compose_cfg
+from omegaconf import OmegaConf
 from tensordict import TensorDict
 
 from roto_trl.modules.agent import Agent
-from roto_trl.modules.networks import cpu_has_bfloat16, hidden_precision
+from roto_trl.modules.networks import cpu_has_bfloat16, hidden_precision, resolved_precision
 from roto_trl.train import check_config, train
 from roto_trl.trainers.checkpoint import LATEST, load_checkpoint
 
@@ -102,8 +103,10 @@ def test_float32_changes_nothing_and_bfloat16_restores_the_setting_after_an_erro
 def test_a_bad_precision_is_a_one_line_error():
     with pytest.raises(ValueError, match=r"agent\.precision must be one of float32, bfloat16, got 'float16'"):
         Agent(("prop",), P, A, precision="float16")
-    with pytest.raises(ValueError, match=r"agent\.precision must be one of"):
+    with pytest.raises(ValueError, match=r"must be one of float32, bfloat16, auto, got .fp16."):
         check_config(compose_cfg(["+exp=bounce_ppo", "agent.precision=fp16"]))
+    with pytest.raises(ValueError, match=r"got 'auto'"):  # the networks take a resolved value only
+        Agent(("prop",), P, A, precision="auto")
     for device in ("cuda", "tpu"):  # a one-line error, also before the device itself is checked
         with pytest.raises(ValueError, match=f"with device={device} use float32"):
             check_config(compose_cfg(["+exp=bounce_ppo", "agent.precision=bfloat16", f"device={device}"]))
@@ -117,3 +120,20 @@ def test_a_bfloat16_run_trains_evaluates_and_its_checkpoint_reloads(tmp_path):
     assert {t.dtype for t in networks.values()} == {torch.float32}
     assert state["config"]["agent"]["precision"] == "bfloat16"  # evaluation rebuilds it as trained
     assert (run / "summary.json").is_file()
+
+
+def test_auto_is_bfloat16_only_on_a_cpu_with_bfloat16_products():
+    on_this_cpu = "bfloat16" if cpu_has_bfloat16() else "float32"
+    assert resolved_precision("auto", "cpu") == on_this_cpu
+    assert resolved_precision("auto", "cuda:0") == "float32"
+    assert resolved_precision("auto", "tpu") == "float32"  # check_device names the bad device
+    assert [resolved_precision(p, "cuda") for p in ("float32", "bfloat16")] == ["float32", "bfloat16"]
+
+
+def test_an_auto_run_saves_the_precision_it_ran(tmp_path, capsys):
+    run = tmp_path / "auto"
+    train(compose_cfg(["+exp=bounce_ppo", *TINY, "agent.precision=auto", f"run_dir={run}"]))
+    on_this_cpu = "bfloat16" if cpu_has_bfloat16() else "float32"
+    assert f"agent.precision: auto -> {on_this_cpu} (device=cpu" in capsys.readouterr().out
+    assert OmegaConf.load(run / "config.yaml").agent.precision == on_this_cpu
+    assert load_checkpoint(run / "checkpoints" / LATEST)["config"]["agent"]["precision"] == on_this_cpu

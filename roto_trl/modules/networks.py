@@ -15,13 +15,25 @@ ENCODER_SIZES = (1024, 512, 256)
 HEAD_SIZES = (128, 64)
 LOG_STD_RANGE = (-20.0, 2.0)  # the authors' clamp of the policy's log standard deviation
 PRECISIONS = ("float32", "bfloat16")  # the hidden layers' arithmetic (``hidden_precision``)
+AUTO_PRECISION = "auto"  # a config value only: ``resolved_precision`` picks one of PRECISIONS
 
 
-def checked_precision(precision: str) -> str:
-    """``precision`` if it is one of ``PRECISIONS``, else a one-line error."""
-    if precision not in PRECISIONS:
-        raise ValueError(f"agent.precision must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+def checked_precision(precision: str, allowed: tuple[str, ...] = PRECISIONS) -> str:
+    """``precision`` if it is one of ``allowed``, else a one-line error."""
+    if precision not in allowed:
+        raise ValueError(f"agent.precision must be one of {', '.join(allowed)}, got {precision!r}")
     return precision
+
+
+def resolved_precision(precision: str, device: str) -> str:
+    """``agent.precision`` as the networks run it: ``auto`` is ``bfloat16`` on a CPU that multiplies
+    bfloat16 in hardware (``cpu_has_bfloat16``) and ``float32`` elsewhere (another CPU, CUDA);
+    ``float32`` and ``bfloat16`` stay as they are. ``train.py`` saves the resolved value in the
+    run's config, so that a run evaluated or resumed on another machine keeps its arithmetic."""
+    precision = checked_precision(precision, (*PRECISIONS, AUTO_PRECISION))
+    if precision != AUTO_PRECISION:
+        return precision
+    return "bfloat16" if str(device).split(":")[0] == "cpu" and cpu_has_bfloat16() else "float32"
 
 
 def cpu_has_bfloat16() -> bool:

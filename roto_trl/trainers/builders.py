@@ -23,6 +23,7 @@ from roto_trl.data.memory import AuxMemory
 from roto_trl.envs.factory import make_env
 from roto_trl.modules.agent import Agent
 from roto_trl.modules.distributions import DEFAULT_ACTION_LOG_PROB, DEFAULT_DETERMINISTIC_ACTION
+from roto_trl.modules.networks import cpu_has_bfloat16, resolved_precision
 from roto_trl.objectives import (
     ForwardDynamicsLoss,
     FullReconstructionLoss,
@@ -101,7 +102,7 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
         value_norm=bool(cfg.agent.get("value_norm", True)),  # runs from before the option: on
         critic_encoder_sizes=cfg.agent.get("critic_encoder_sizes"),  # null: the policy encoder's
         action_log_prob=str(cfg.agent.get("action_log_prob", DEFAULT_ACTION_LOG_PROB)),  # old runs: gaussian
-        precision=str(cfg.agent.get("precision", "float32")),  # runs from before the option: float32
+        precision=agent_precision(cfg),
     )
     return agent.to(cfg.device)
 
@@ -247,6 +248,23 @@ def apply_rollout_floor(cfg) -> None:
             f"agent.min_rollout_len=null keeps {a.rollout_len})"
         )
         a.rollout_len = floor
+
+
+def agent_precision(cfg) -> str:
+    """``agent.precision`` resolved for this machine (``resolved_precision``); configs saved before
+    the option: float32."""
+    cfg = _cfg(cfg)
+    return resolved_precision(str(cfg.agent.get("precision", "float32")), str(cfg.device))
+
+
+def apply_precision(cfg) -> None:
+    """Replace ``agent.precision=auto`` by what it resolves to on this machine (edits ``cfg``, so
+    that the run's saved config holds it) and say so in one line."""
+    a = _cfg(cfg).agent
+    if a.get("precision") == "auto":
+        a.precision = agent_precision(cfg)
+        why = "bfloat16 products in hardware" if cpu_has_bfloat16() else "no bfloat16 products in hardware"
+        print(f"agent.precision: auto -> {a.precision} (device={cfg.device}, CPU with {why})")
 
 
 def gae_horizon(cfg) -> int | None:
