@@ -11,6 +11,7 @@ from tensordict import TensorDict
 from roto_trl.modules.agent import Agent
 from roto_trl.modules.networks import cpu_has_bfloat16, hidden_precision, resolved_precision
 from roto_trl.train import check_config, train
+from roto_trl.trainers.builders import apply_precision
 from roto_trl.trainers.checkpoint import LATEST, load_checkpoint
 
 P, A = 12, 4
@@ -122,18 +123,24 @@ def test_a_bfloat16_run_trains_evaluates_and_its_checkpoint_reloads(tmp_path):
     assert (run / "summary.json").is_file()
 
 
-def test_auto_is_bfloat16_only_on_a_cpu_with_bfloat16_products():
+def test_auto_is_bfloat16_only_on_a_cpu_with_bfloat16_products(capsys):
     on_this_cpu = "bfloat16" if cpu_has_bfloat16() else "float32"
     assert resolved_precision("auto", "cpu") == on_this_cpu
     assert resolved_precision("auto", "cuda:0") == "float32"
     assert resolved_precision("auto", "tpu") == "float32"  # check_device names the bad device
     assert [resolved_precision(p, "cuda") for p in ("float32", "bfloat16")] == ["float32", "bfloat16"]
+    cfg = compose_cfg(["+exp=bounce_ppo", "agent.precision=auto", "device=cuda"])
+    apply_precision(cfg)  # as train() does before it saves the run's config
+    assert cfg.agent.precision == "float32"
+    assert "auto -> float32 (device=cuda: bfloat16 products are a CPU path)" in capsys.readouterr().out
 
 
 def test_an_auto_run_saves_the_precision_it_ran(tmp_path, capsys):
     run = tmp_path / "auto"
     train(compose_cfg(["+exp=bounce_ppo", *TINY, "agent.precision=auto", f"run_dir={run}"]))
     on_this_cpu = "bfloat16" if cpu_has_bfloat16() else "float32"
-    assert f"agent.precision: auto -> {on_this_cpu} (device=cpu" in capsys.readouterr().out
+    with_or_without = "with" if cpu_has_bfloat16() else "without"
+    said = f"auto -> {on_this_cpu} (device=cpu: a CPU {with_or_without} bfloat16 products in hardware)"
+    assert f"agent.precision: {said}" in capsys.readouterr().out
     assert OmegaConf.load(run / "config.yaml").agent.precision == on_this_cpu
     assert load_checkpoint(run / "checkpoints" / LATEST)["config"]["agent"]["precision"] == on_this_cpu

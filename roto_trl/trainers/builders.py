@@ -263,8 +263,11 @@ def apply_precision(cfg) -> None:
     a = _cfg(cfg).agent
     if a.get("precision") == "auto":
         a.precision = agent_precision(cfg)
-        why = "bfloat16 products in hardware" if cpu_has_bfloat16() else "no bfloat16 products in hardware"
-        print(f"agent.precision: auto -> {a.precision} (device={cfg.device}, CPU with {why})")
+        if str(cfg.device).split(":")[0] != "cpu":
+            why = "bfloat16 products are a CPU path"
+        else:
+            why = f"a CPU {'with' if cpu_has_bfloat16() else 'without'} bfloat16 products in hardware"
+        print(f"agent.precision: auto -> {a.precision} (device={cfg.device}: {why})")
 
 
 def gae_horizon(cfg) -> int | None:
