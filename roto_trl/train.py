@@ -45,7 +45,7 @@ from roto_trl.modules.distributions import (
     DEFAULT_DETERMINISTIC_ACTION,
     policy_distribution_kwargs,
 )
-from roto_trl.modules.networks import cpu_has_bfloat16
+from roto_trl.modules.networks import cpu_has_bfloat16, on_cpu
 from roto_trl.objectives.mean_bound import checked_mean_bound
 from roto_trl.objectives.proximal_feature import checked_feature_coeff
 from roto_trl.trainers.builders import (
@@ -154,7 +154,7 @@ def check_config(cfg: DictConfig) -> None:
     if cfg.logger.backend not in BACKENDS:
         raise ValueError(f"logger.backend must be one of {list(BACKENDS)}, got {cfg.logger.backend!r}")
     precision = agent_precision(cfg)
-    if precision == "bfloat16" and str(cfg.device).split(":")[0] != "cpu":  # before check_device parses it
+    if precision == "bfloat16" and not on_cpu(cfg.device):  # before check_device parses it
         raise ValueError(
             "agent.precision=bfloat16 rounds oneDNN's CPU matrix products; "
             f"with device={cfg.device} use float32"

@@ -33,7 +33,13 @@ def resolved_precision(precision: str, device: str) -> str:
     precision = checked_precision(precision, (*PRECISIONS, AUTO_PRECISION))
     if precision != AUTO_PRECISION:
         return precision
-    return "bfloat16" if str(device).split(":")[0] == "cpu" and cpu_has_bfloat16() else "float32"
+    return "bfloat16" if on_cpu(device) and cpu_has_bfloat16() else "float32"
+
+
+def on_cpu(device) -> bool:
+    """Whether ``device`` (``cpu``, ``cuda:1``, or a name torch cannot parse) names the CPU,
+    without parsing it: ``check_device`` gives the one-line error for a bad name."""
+    return str(device).split(":")[0] == "cpu"
 
 
 def cpu_has_bfloat16() -> bool:

@@ -23,7 +23,7 @@ from roto_trl.data.memory import AuxMemory
 from roto_trl.envs.factory import make_env
 from roto_trl.modules.agent import Agent
 from roto_trl.modules.distributions import DEFAULT_ACTION_LOG_PROB, DEFAULT_DETERMINISTIC_ACTION
-from roto_trl.modules.networks import cpu_has_bfloat16, resolved_precision
+from roto_trl.modules.networks import cpu_has_bfloat16, on_cpu, resolved_precision
 from roto_trl.objectives import (
     ForwardDynamicsLoss,
     FullReconstructionLoss,
@@ -263,7 +263,7 @@ def apply_precision(cfg) -> None:
     a = _cfg(cfg).agent
     if a.get("precision") == "auto":
         a.precision = agent_precision(cfg)
-        if str(cfg.device).split(":")[0] != "cpu":
+        if not on_cpu(cfg.device):
             why = "bfloat16 products are a CPU path"
         else:
             why = f"a CPU {'with' if cpu_has_bfloat16() else 'without'} bfloat16 products in hardware"
