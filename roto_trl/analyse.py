@@ -6,6 +6,7 @@
     python roto_trl/analyse.py tactile runs/bounce_tfd/<run>          # predicted vs actual contacts
     python roto_trl/analyse.py aux-memory 'runs/baoding_fd*/*'        # auxiliary loss per minibatch
     python roto_trl/analyse.py table 'runs/multirun/*/*' --at 2.5M,5M --reference   # the results table
+    python roto_trl/analyse.py compare 'runs/find_fd_bf16/*' --against 'runs/find_fd/*'  # paired by seed
 
 Runs are run directories of ``train.py`` or quoted globs of them. Each command writes PNGs and a
 CSV of the numbers behind them to ``--out`` (default ``runs/analysis/<command>``) and prints
@@ -29,6 +30,7 @@ import torch
 from omegaconf import OmegaConf
 
 from roto_trl.analysis.checkpoint_eval import load_run
+from roto_trl.analysis.compare import compare_runs, comparison_csv_rows, comparison_markdown
 from roto_trl.analysis.mutual_information import latent_state_information, pca
 from roto_trl.analysis.plots import save_figure
 from roto_trl.analysis.rollouts import collect
@@ -317,6 +319,19 @@ def cmd_stability(runs: list[Run], out: Path, args) -> list[Path]:
     return [out / "stability.md", write_csv(out / "stability.csv", header, csv_rows)]
 
 
+def cmd_compare(runs: list[Run], out: Path, args) -> list[Path]:
+    """The runs against the --against runs, paired by seed: finals, their paired difference and
+    its standard error, holding, frames/s."""
+    base = find_runs(args.against)
+    one_task(runs + base, "compare")
+    comparison = compare_runs(base, runs)
+    markdown = comparison_markdown(comparison)
+    print(markdown)
+    (out / "compare.md").write_text(markdown)
+    header, csv_rows = comparison_csv_rows(comparison)
+    return [out / "compare.md", write_csv(out / "compare.csv", header, csv_rows)]
+
+
 COMMANDS = {
     "curves": cmd_curves,
     "mi": cmd_mi,
@@ -325,6 +340,7 @@ COMMANDS = {
     "aux-memory": cmd_aux_memory,
     "table": cmd_table,
     "stability": cmd_stability,
+    "compare": cmd_compare,
 }
 
 
@@ -373,6 +389,13 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         if name == "table":
             p.add_argument("--at", default=None, help="also at these frame counts, e.g. 2.5M,5M,10M")
             p.add_argument("--reference", action="store_true", help="the authors' numbers beside ours")
+        if name == "compare":
+            p.add_argument(
+                "--against",
+                nargs="+",
+                required=True,
+                help="the base runs (directories or quoted globs), same seeds",
+            )
         if name == "stability":
             p.add_argument(
                 "--at", default="0.3M,0.5M,1M,1.5M,2M", help="frame marks of the training-episode column"
