@@ -85,6 +85,9 @@ def test_compare_pairs_runs_by_seed(tmp_path, capsys):
     assert "final evaluations during training" in capsys.readouterr().out
     rows = read_rows(out / "compare.csv")
     assert [float(rows[1][k]) for k in ("base_final", "test_final", "test_held")] == [20, 30, 0.75]
+    analyse.main(["compare", str(test / "s1"), "--against", str(base / "s1"), "--out", str(out)])
+    printed = capsys.readouterr().out
+    assert "1 seed: final 30 -> 44, paired difference +14 (one pair: no standard error)" in printed
 
 
 def test_compare_rejects_sets_it_cannot_pair(tmp_path):

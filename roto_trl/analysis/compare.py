@@ -144,11 +144,15 @@ def comparison_markdown(c: Comparison) -> str:
             f"{_held(c.held(b))} | {_held(c.held(t))} | {b.frames_per_s:,.0f} | {t.frames_per_s:,.0f} |"
         )
     s = summary(c)
+    spread = (
+        f" +- {s['standard_error']:.2g} ({s['difference_in_se']:+.2f} standard errors)"
+        if len(c.seeds) > 1
+        else " (one pair: no standard error)"
+    )
     lines += [
         "",
-        f"{len(c.seeds)} seeds: final {s['base_final']:.3g} -> {s['test_final']:.3g}, paired difference "
-        f"{s['difference']:+.3g} +- {s['standard_error']:.2g}"
-        f" ({s['difference_in_se']:+.2f} standard errors); "
+        f"{len(c.seeds)} seed{'s' if len(c.seeds) > 1 else ''}: final {s['base_final']:.3g} -> "
+        f"{s['test_final']:.3g}, paired difference {s['difference']:+.3g}{spread}; "
         f"best {s['base_best']:.3g} -> {s['test_best']:.3g}; holding {s['base_holding']} -> "
         f"{s['test_holding']} of {len(c.seeds)}; frames/s x{s['frames_per_s_ratio']:.2f}",
     ]
