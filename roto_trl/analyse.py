@@ -311,7 +311,7 @@ def cmd_stability(runs: list[Run], out: Path, args) -> list[Path]:
     """Per run: training episodes at frame marks, best and final evaluation of the task's metric,
     median KL and clip fraction."""
     marks = parse_frames(args.at)
-    rows = [run_stability(run, marks) for run in runs]
+    rows = [run_stability(run, marks, args.metric) for run in runs]
     markdown = stability_markdown(rows, marks)
     print(markdown)
     (out / "stability.md").write_text(markdown)
@@ -324,7 +324,7 @@ def cmd_compare(runs: list[Run], out: Path, args) -> list[Path]:
     its standard error, holding, frames/s."""
     base = find_runs(args.against)
     one_task(runs + base, "compare")
-    comparison = compare_runs(base, runs)
+    comparison = compare_runs(base, runs, args.metric)
     markdown = comparison_markdown(comparison)
     print(markdown)
     (out / "compare.md").write_text(markdown)
@@ -389,6 +389,12 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         if name == "table":
             p.add_argument("--at", default=None, help="also at these frame counts, e.g. 2.5M,5M,10M")
             p.add_argument("--reference", action="store_true", help="the authors' numbers beside ours")
+        if name in ("stability", "compare"):
+            p.add_argument(
+                "--metric",
+                default=None,
+                help="an eval.csv column, e.g. return_mean (default: the task's headline metric)",
+            )
         if name == "compare":
             p.add_argument(
                 "--against",

@@ -45,7 +45,8 @@ def write_run(root, name, seed, precision, evals, fps, best=None, latest=None):
     made = {"episodes": 1000, "seed": 5, "policy": "applied_mean"}
     for file, value in (("eval.json", best), ("eval_latest.json", latest)):
         if value is not None:
-            (run / file).write_text(json.dumps({**made, "physical": {"bounces_per_10s": value}}))
+            result = {**made, "return_mean": 2 * value, "physical": {"bounces_per_10s": value}}
+            (run / file).write_text(json.dumps(result))
     return run
 
 
@@ -79,6 +80,39 @@ def test_compare_pairs_runs_by_seed(tmp_path, capsys):
     assert "best 35 -> 40; holding 0 -> 2 of 2; frames/s x1.36" in printed
     assert "| 2 | 20 | 35 | +15 | 0.67 (fell back) | 0.97 | 1,200 | 1,500 |" in printed
     assert "left out (in one set only): seeds 0, 5" in printed
+    # another metric of the same evaluations: the return, twice the bounces in these runs
+    analyse.main(
+        [
+            "compare",
+            str(test / "*"),
+            "--against",
+            str(base / "*"),
+            "--out",
+            str(out),
+            "--metric",
+            "return_mean",
+        ]
+    )
+    assert (
+        "2 seeds: final 50 -> 79, paired difference +29 +- 1 (+29.00 standard errors)"
+        in capsys.readouterr().out
+    )
+    with pytest.raises(
+        SystemExit,
+        match=r"--metric bounce: .*eval\.csv has no such column; give one of return_mean, bounces_per_10s$",
+    ):
+        analyse.main(
+            [
+                "compare",
+                str(test / "*"),
+                "--against",
+                str(base / "*"),
+                "--out",
+                str(out),
+                "--metric",
+                "bounce",
+            ]
+        )
     # one run without its final checkpoint re-evaluated: every pair falls back to the in-run values
     (test / "s2" / "eval_latest.json").unlink()
     analyse.main(["compare", str(test / "*"), "--against", str(base / "*"), "--out", str(out)])

@@ -83,19 +83,20 @@ class Comparison:
         return row.held_checkpoints if self.checkpoints else row.held
 
 
-def by_seed(runs: list[Run], option: str) -> dict[int, tuple[Run, RunStability]]:
+def by_seed(runs: list[Run], option: str, metric: str | None) -> dict[int, tuple[Run, RunStability]]:
     """``seed -> (run, its stability row)``; a ``ValueError`` when a set holds two runs of one seed."""
     out: dict[int, tuple[Run, RunStability]] = {}
     for run in runs:
         if run.seed in out:
             raise ValueError(f"{option} holds two runs of seed {run.seed}: give one run per seed")
-        out[run.seed] = (run, run_stability(run))
+        out[run.seed] = (run, run_stability(run, metric=metric))
     return out
 
 
-def compare_runs(base_runs: list[Run], test_runs: list[Run]) -> Comparison:
-    """Pair two sets of runs of one task by seed (see the module's docstring)."""
-    base_set, test_set = by_seed(base_runs, "--against"), by_seed(test_runs, "the runs")
+def compare_runs(base_runs: list[Run], test_runs: list[Run], metric: str | None = None) -> Comparison:
+    """Pair two sets of runs of one task by seed (see the module's docstring) on ``metric``
+    (default the task's headline metric; see ``run_stability``)."""
+    base_set, test_set = by_seed(base_runs, "--against", metric), by_seed(test_runs, "the runs", metric)
     seeds = sorted(base_set.keys() & test_set.keys())
     if not seeds:
         raise ValueError(

@@ -124,16 +124,26 @@ def best_evaluation(values: np.ndarray, returns, metric: str) -> int:
     return max(range(len(results)), key=lambda i: selection_key(results[i], metric))
 
 
-def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
+def run_stability(run: Run, marks=DEFAULT_MARKS, metric: str | None = None) -> RunStability:
     """The run's row, with the training episodes at ``marks``; a ``ValueError`` naming the
-    missing log otherwise."""
-    metric = TASKS[run.task].HEADLINE_METRIC
+    missing log otherwise.
+
+    ``metric``: an ``eval.csv`` column to report (default the task's headline metric; e.g.
+    ``return_mean`` on Baoding, whose rotations stay 0 for millions of frames). The best
+    evaluation is always the one ``best.pt`` holds, ranked by the headline metric as training
+    ranks them; the row gives ``metric`` there.
+    """
+    headline = TASKS[run.task].HEADLINE_METRIC
+    metric = metric or headline
     ev = run_csv(run, "eval.csv", "stability needs runs that have evaluated at least once")
     train = run_csv(run, "train.csv", "stability needs the training log")
+    if headline not in ev:
+        raise ValueError(f"{run.path}/eval.csv has no {headline} column; it is not a {run.task} run's log")
     if metric not in ev:
-        raise ValueError(f"{run.path}/eval.csv has no {metric} column; it is not a {run.task} run's log")
+        known = ", ".join(k for k in ev if k not in ("frames", "iteration", "time"))
+        raise ValueError(f"--metric {metric}: {run.path}/eval.csv has no such column; give one of {known}")
     values = np.asarray(ev[metric], dtype=float)
-    best = best_evaluation(values, ev.get("return_mean"), metric)
+    best = best_evaluation(np.asarray(ev[headline], dtype=float), ev.get("return_mean"), headline)
     row = RunStability(
         label=run.label,
         seed=run.seed,
@@ -145,7 +155,7 @@ def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
         kl_median=_median(train.get("kl_k3_median")),
         clip_median=_median(train.get("clip_fraction_median")),
         frames_per_s=_median(train.get("fps")),
-        training_metric=f"episode/{metric}" if f"episode/{metric}" in train else TRAINING_METRIC[run.task],
+        training_metric=training_column(metric, train, run.task),
     )
     if row.training_metric in train and "episodes" in train:
         frames, values, episodes = (
@@ -157,15 +167,30 @@ def run_stability(run: Run, marks=DEFAULT_MARKS) -> RunStability:
         )
     best_eval, final_eval = (read_json(run.path / name) for name in ("eval.json", "eval_latest.json"))
     if best_eval is not None:
-        row.checkpoint_value = best_eval["physical"].get(metric)
+        row.checkpoint_value = result_value(best_eval, metric)
         row.checkpoint_episodes = int(best_eval["episodes"])
         # only an evaluation made like the best checkpoint's compares with it
         if final_eval is not None and all(
             final_eval.get(k) == best_eval.get(k) for k in ("episodes", "seed", "policy", "weights")
         ):
-            row.final_checkpoint_value = final_eval["physical"].get(metric)
+            row.final_checkpoint_value = result_value(final_eval, metric)
             row.final_checkpoint_episodes = int(final_eval["episodes"])
     return row
+
+
+def training_column(metric: str, train: dict, task: str) -> str:
+    """The ``train.csv`` column of the training episodes' ``metric``: ``episode/<metric>``, the
+    return's ``episode_return``, or in logs from before ``episode/<headline>`` the task's
+    ``TRAINING_METRIC``."""
+    if metric == "return_mean":
+        return "episode_return"
+    return f"episode/{metric}" if f"episode/{metric}" in train else TRAINING_METRIC[task]
+
+
+def result_value(result: dict, metric: str) -> float | None:
+    """``metric`` in an ``evaluate.py`` result: the return at its top level, physical metrics
+    under ``physical``."""
+    return result.get(metric) if metric == "return_mean" else result["physical"].get(metric)
 
 
 def _median(series: list[float] | None) -> float:
