@@ -15,7 +15,9 @@ For each experiment and world count it measures, in one process:
            values without it and ours / peer understates ours.
 It prints frames/s, each phase's share of our iteration, ours / serial limit where the serial
 limit is 1 / (1/sim + 1/update) (collection and update run one after the other on the same
-cores), and ours / best peer. Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
+cores), ours / best peer and the precision of our matrix products (``agent.precision`` resolved
+for this machine: ``+profile=cpu`` takes ``auto`` on Bounce, bfloat16 on a CPU with AMX or
+AVX512-BF16; the peers run float32). Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
 ``--fused`` adds a column: the bare update with the other Adam (``agent.fused_adam`` negated);
 ``--compile`` runs ours and the bare update with ``agent.compile=true``; ``--profile cpu`` measures
 the CPU recipe (``+profile=cpu``: separate critic, KL-adaptive rate, 8 minibatches; the peers
@@ -50,6 +52,7 @@ from peers import PEERS  # benchmarks/peers.py (skrl and rsl_rl are imported onl
 
 from roto_trl.trainers.builders import (
     agent_for_env,
+    agent_precision,
     apply_rollout_floor,
     compile_agent,
     make_advantage,
@@ -185,7 +188,7 @@ def main() -> None:
         f"{'exp':<11} {'N':>5} {'ours':>7} {'sim':>7} {'update':>7} {'limit':>7} {'ours/lim':>8} "
         f"{'collect':>7} {'adv':>5} {'upd':>5} "
         + " ".join(f"{p:>{PEER_WIDTH[p]}}" for p in PEERS)
-        + f" {'ours/peer':>9}"
+        + f" {'ours/peer':>9} {'products':>8}"
         + ("  other adam" if args.fused else "")
     )
     print(header)
@@ -217,6 +220,7 @@ def main() -> None:
                     f"{r['fps'] / limit:>8.2f} {r['collect'] / total:>7.0%} {r['advantages'] / total:>5.0%} "
                     f"{r['update'] / total:>5.0%} {cells} "
                     + (f"{r['fps'] / best:>9.2f}" if best else f"{'-':>9}")
+                    + f" {agent_precision(cfg):>8}"
                 )
                 if args.fused:
                     line += f"  {frames / r['bare_other']:>10,.0f}"

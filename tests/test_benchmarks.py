@@ -7,6 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from roto_trl.modules.networks import resolved_precision
+
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
@@ -23,6 +25,7 @@ def test_train_throughput_measures_an_ssl_experiment_with_the_cpu_recipe():
     ours, sim, update, limit, ratio = row.split()[2:7]
     assert all(float(v.replace(",", "")) > 0 for v in (ours, sim, update, limit))
     assert re.fullmatch(r"\d+\.\d\d", ratio)
+    assert row.split()[-1] == resolved_precision("auto", "cpu")  # the recipe's products on Bounce
 
 
 def test_learning_vs_peers_trains_ours_then_reads_a_finished_run(tmp_path):
