@@ -81,41 +81,16 @@ def test_compare_pairs_runs_by_seed(tmp_path, capsys):
     assert "| 2 | 20 | 35 | +15 | 0.67 (fell back) | 0.97 | 1,200 | 1,500 |" in printed
     assert "left out (in one set only): seeds 0, 5" in printed
     # another metric of the same evaluations: the return, twice the bounces in these runs
-    analyse.main(
-        [
-            "compare",
-            str(test / "*"),
-            "--against",
-            str(base / "*"),
-            "--out",
-            str(out),
-            "--metric",
-            "return_mean",
-        ]
-    )
-    assert (
-        "2 seeds: final 50 -> 79, paired difference +29 +- 1 (+29.00 standard errors)"
-        in capsys.readouterr().out
-    )
-    with pytest.raises(
-        SystemExit,
-        match=r"--metric bounce: .*eval\.csv has no such column; give one of return_mean, bounces_per_10s$",
-    ):
-        analyse.main(
-            [
-                "compare",
-                str(test / "*"),
-                "--against",
-                str(base / "*"),
-                "--out",
-                str(out),
-                "--metric",
-                "bounce",
-            ]
-        )
+    both = ["compare", str(test / "*"), "--against", str(base / "*"), "--out", str(out)]
+    analyse.main([*both, "--metric", "return_mean"])
+    printed = capsys.readouterr().out
+    assert "2 seeds: final 50 -> 79, paired difference +29 +- 1 (+29.00 standard errors)" in printed
+    no_column = r"--metric bounce: .*eval\.csv has no such column; give one of return_mean, bounces_per_10s$"
+    with pytest.raises(SystemExit, match=no_column):
+        analyse.main([*both, "--metric", "bounce"])
     # one run without its final checkpoint re-evaluated: every pair falls back to the in-run values
     (test / "s2" / "eval_latest.json").unlink()
-    analyse.main(["compare", str(test / "*"), "--against", str(base / "*"), "--out", str(out)])
+    analyse.main(both)
     assert "final evaluations during training" in capsys.readouterr().out
     rows = read_rows(out / "compare.csv")
     assert [float(rows[1][k]) for k in ("base_final", "test_final", "test_held")] == [20, 30, 0.75]
