@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from roto_trl.analysis.runs import Run
-from roto_trl.analysis.stability import HOLD_FRACTION, RunStability, run_stability
+from roto_trl.analysis.stability import HOLD_FRACTION, RunStability, held_cell, run_stability
 
 IGNORED_KEYS = ("run_dir", "seed")  # differ between any two runs; not the choice compared
 
@@ -103,9 +103,8 @@ def compare_runs(base_runs: list[Run], test_runs: list[Run], metric: str | None 
             f"no seed is in both sets (runs: {sorted(test_set)}, --against: {sorted(base_set)}):"
             " run the same seeds both ways"
         )
-    base = {s: base_set[s][1] for s in seeds}
-    test = {s: test_set[s][1] for s in seeds}
-    paired = [*base.values(), *test.values()]
+    base, test = [base_set[s][1] for s in seeds], [test_set[s][1] for s in seeds]
+    paired = base + test
     checkpoints = all(r.final_checkpoint_value is not None for r in paired)
     if checkpoints:
         episodes = sorted({r.final_checkpoint_episodes for r in paired})
@@ -117,8 +116,8 @@ def compare_runs(base_runs: list[Run], test_runs: list[Run], metric: str | None 
         metric=paired[0].metric,
         source=source,
         seeds=seeds,
-        base=list(base.values()),
-        test=list(test.values()),
+        base=base,
+        test=test,
         left_out=sorted(base_set.keys() ^ test_set.keys()),
         differences=config_differences(
             [base_set[s][0].config for s in seeds], [test_set[s][0].config for s in seeds]
@@ -142,7 +141,8 @@ def comparison_markdown(c: Comparison) -> str:
     for seed, b, t in zip(c.seeds, c.base, c.test, strict=True):
         lines.append(
             f"| {seed} | {c.final(b):.3g} | {c.final(t):.3g} | {c.final(t) - c.final(b):+.3g} | "
-            f"{_held(c.held(b))} | {_held(c.held(t))} | {b.frames_per_s:,.0f} | {t.frames_per_s:,.0f} |"
+            f"{held_cell(c.held(b))} | {held_cell(c.held(t))} | "
+            f"{b.frames_per_s:,.0f} | {t.frames_per_s:,.0f} |"
         )
     s = summary(c)
     spread = (
@@ -190,7 +190,3 @@ def comparison_csv_rows(c: Comparison) -> tuple[list[str], list[list]]:
         rows.append([seed, c.final(b), c.final(t), c.final(t) - c.final(b), c.best(b), c.best(t)])
         rows[-1] += [c.held(b), c.held(t), b.frames_per_s, t.frames_per_s]
     return header, rows
-
-
-def _held(value: float) -> str:
-    return f"{value:.2f}" + ("" if value >= HOLD_FRACTION else " (fell back)")

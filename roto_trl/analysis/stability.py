@@ -213,19 +213,22 @@ def stability_markdown(rows: list[RunStability], marks=DEFAULT_MARKS) -> str:
         if r.checkpoint_value is not None:
             checkpoint = f"{r.checkpoint_value:.3g} ({r.checkpoint_episodes})"
         if r.final_checkpoint_value is not None:
-            fell = " (fell back)" if r.held_checkpoints < HOLD_FRACTION else ""
-            final_checkpoint = f"{r.final_checkpoint_value:.3g}, {r.held_checkpoints:.2f}{fell}"
-        flag = "" if r.held >= HOLD_FRACTION else " (fell back)"
+            final_checkpoint = f"{r.final_checkpoint_value:.3g}, {held_cell(r.held_checkpoints)}"
         training = " / ".join(_cell((r.training or {}).get(m, math.nan)) for m in marks)
         lines.append(
             f"| {r.label} | {r.seed} | {r.training_metric}: {training} | {r.metric} | {r.frames:,} | "
             f"{r.best:.3g} ({r.best_frames:,}) | "
-            f"{r.final:.3g} | {r.held:.2f}{flag} | "
+            f"{r.final:.3g} | {held_cell(r.held)} | "
             f"{_cell(r.training_at_best)} / {_cell(r.training_at_final)} | "
             f"{checkpoint} | {final_checkpoint} | "
             f"{r.kl_median:.3g} | {r.clip_median:.2f} | {r.frames_per_s:,.0f} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def held_cell(ratio: float) -> str:
+    """final / best as a table cell, flagged when the run fell back (under ``HOLD_FRACTION``)."""
+    return f"{ratio:.2f}" + ("" if ratio >= HOLD_FRACTION else " (fell back)")
 
 
 def _cell(value: float) -> str:
