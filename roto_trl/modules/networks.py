@@ -49,27 +49,27 @@ def cpu_has_bfloat16() -> bool:
 
 
 @contextlib.contextmanager
-def bfloat16_products() -> Iterator[None]:
+def onednn_products(setting: str) -> Iterator[None]:
+    """oneDNN's float32 matrix products in ``setting`` (torch's ``mkldnn.matmul.fp32_precision``:
+    ``bf16``, ``ieee``) inside the block, the caller's setting restored after."""
+    before = torch.backends.mkldnn.matmul.fp32_precision
+    torch.backends.mkldnn.matmul.fp32_precision = setting
+    try:
+        yield
+    finally:
+        torch.backends.mkldnn.matmul.fp32_precision = before
+
+
+def bfloat16_products() -> contextlib.AbstractContextManager:
     """float32 matrix products computed by oneDNN in bfloat16 (both factors rounded to bfloat16's
     8 bits, sums and results in float32) inside the block; everything else stays float32."""
-    before = torch.backends.mkldnn.matmul.fp32_precision
-    torch.backends.mkldnn.matmul.fp32_precision = "bf16"
-    try:
-        yield
-    finally:
-        torch.backends.mkldnn.matmul.fp32_precision = before
+    return onednn_products("bf16")
 
 
-@contextlib.contextmanager
-def float32_products() -> Iterator[None]:
-    """float32 matrix products computed by oneDNN in float32 inside the block, also inside
+def float32_products() -> contextlib.AbstractContextManager:
+    """float32 matrix products computed in float32 inside the block, also inside
     ``bfloat16_products``."""
-    before = torch.backends.mkldnn.matmul.fp32_precision
-    torch.backends.mkldnn.matmul.fp32_precision = "ieee"
-    try:
-        yield
-    finally:
-        torch.backends.mkldnn.matmul.fp32_precision = before
+    return onednn_products("ieee")
 
 
 class _Float32LinearFunction(torch.autograd.Function):
