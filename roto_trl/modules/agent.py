@@ -83,9 +83,6 @@ class Agent(nn.Module):
         precision: the hidden layers' matrix products, ``float32`` or ``bfloat16`` (factors
             rounded to bfloat16, sums in float32; activations, weights, the optimiser and the
             output layers' forward stay float32); see ``roto_trl.modules.networks.hidden_precision``.
-        float32_input_layer: keep the encoders' first layer in float32 under ``precision``
-            ``bfloat16``, so that the observations reach the network unrounded
-            (``roto_trl.modules.networks.Float32Linear``).
     """
 
     def __init__(
@@ -100,19 +97,16 @@ class Agent(nn.Module):
         critic_encoder_sizes: tuple[int, ...] | None = None,
         action_log_prob: str = DEFAULT_ACTION_LOG_PROB,
         precision: str = "float32",
-        float32_input_layer: bool = False,
     ) -> None:
         super().__init__()
         critic_encoder_sizes = checked_critic_sizes(critic_encoder_sizes, shared_encoder)
         self.obs_keys = tuple(obs_keys)
         self.n_actions = int(n_actions)
-        self.encoder = Encoder(obs_dim, precision=precision, float32_input_layer=float32_input_layer)
+        self.encoder = Encoder(obs_dim, precision=precision)
         self.policy_head = PolicyHead(self.encoder.latent_dim, n_actions, init_log_std, precision)
         # the critic's own encoder is registered after the policy's modules, as before the option,
         # so that the optimiser's parameter order (and a resumed run's Adam state) is unchanged
-        value_encoder = (
-            None if shared_encoder else Encoder(obs_dim, critic_encoder_sizes, precision, float32_input_layer)
-        )
+        value_encoder = None if shared_encoder else Encoder(obs_dim, critic_encoder_sizes, precision)
         self.value_head = ValueHead((self.encoder if shared_encoder else value_encoder).latent_dim, precision)
         self.value_norm = ValueNormalizer(enabled=value_norm)
         # observation entries -> z: the encoder as the self-supervised losses take it

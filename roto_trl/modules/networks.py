@@ -49,57 +49,15 @@ def cpu_has_bfloat16() -> bool:
 
 
 @contextlib.contextmanager
-def onednn_products(setting: str) -> Iterator[None]:
-    """oneDNN's float32 matrix products in ``setting`` (torch's ``mkldnn.matmul.fp32_precision``:
-    ``bf16``, ``ieee``) inside the block, the caller's setting restored after."""
+def bfloat16_products() -> Iterator[None]:
+    """float32 matrix products computed by oneDNN in bfloat16 (both factors rounded to bfloat16's
+    8 bits, sums and results in float32) inside the block; everything else stays float32."""
     before = torch.backends.mkldnn.matmul.fp32_precision
-    torch.backends.mkldnn.matmul.fp32_precision = setting
+    torch.backends.mkldnn.matmul.fp32_precision = "bf16"
     try:
         yield
     finally:
         torch.backends.mkldnn.matmul.fp32_precision = before
-
-
-def bfloat16_products() -> contextlib.AbstractContextManager:
-    """float32 matrix products computed by oneDNN in bfloat16 (both factors rounded to bfloat16's
-    8 bits, sums and results in float32) inside the block; everything else stays float32."""
-    return onednn_products("bf16")
-
-
-def float32_products() -> contextlib.AbstractContextManager:
-    """float32 matrix products computed in float32 inside the block, also inside
-    ``bfloat16_products``."""
-    return onednn_products("ieee")
-
-
-class _Float32LinearFunction(torch.autograd.Function):
-    """``F.linear`` whose forward and backward products are float32 whatever the context: the
-    backward runs where ``minibatch_step`` calls it, inside ``bfloat16_products``."""
-
-    @staticmethod
-    def forward(ctx, x: torch.Tensor, weight: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
-        ctx.save_for_backward(x, weight)
-        with float32_products():
-            return nn.functional.linear(x, weight, bias)
-
-    @staticmethod
-    def backward(ctx, grad: torch.Tensor):
-        x, weight = ctx.saved_tensors
-        rows = grad.reshape(-1, grad.shape[-1])  # [B, out]
-        with float32_products():
-            grad_x = grad @ weight if ctx.needs_input_grad[0] else None
-            grad_weight = rows.T @ x.reshape(-1, x.shape[-1])
-        return grad_x, grad_weight, rows.sum(0)
-
-
-class Float32Linear(nn.Linear):
-    """``nn.Linear`` (same parameters and state dict) whose products stay float32 in the forward
-    and the backward, so that an encoder's inputs, the raw observations, are never rounded to
-    bfloat16's 8 bits (``agent.float32_input_layer``; Find's end-effector position in metres would
-    keep 2-4 mm of resolution)."""
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return _Float32LinearFunction.apply(x, self.weight, self.bias)
 
 
 def hidden_precision(precision: str) -> contextlib.AbstractContextManager:
@@ -113,14 +71,11 @@ def hidden_precision(precision: str) -> contextlib.AbstractContextManager:
     return bfloat16_products() if precision == "bfloat16" else contextlib.nullcontext()
 
 
-def mlp(
-    in_dim: int, sizes: tuple[int, ...], *, layer_norm: bool, float32_first: bool = False
-) -> nn.Sequential:
-    """Linear layers of ``sizes``, each followed by (LayerNorm and) ELU; with ``float32_first``
-    the first is a ``Float32Linear``."""
+def mlp(in_dim: int, sizes: tuple[int, ...], *, layer_norm: bool) -> nn.Sequential:
+    """Linear layers of ``sizes``, each followed by (LayerNorm and) ELU."""
     layers: list[nn.Module] = []
-    for i, size in enumerate(sizes):
-        layers.append(Float32Linear(in_dim, size) if float32_first and i == 0 else nn.Linear(in_dim, size))
+    for size in sizes:
+        layers.append(nn.Linear(in_dim, size))
         if layer_norm:
             layers.append(nn.LayerNorm(size))
         layers.append(nn.ELU())
@@ -133,20 +88,15 @@ class Encoder(nn.Module):
 
     ``forward(*parts)`` takes the observation parts (``prop`` ``[*B, k*P]``, optionally
     ``tactile`` ``[*B, k*T]``), concatenates them and returns ``z`` ``[*B, 256]`` in float32
-    (its products computed in ``precision``, see ``hidden_precision``; with
-    ``float32_input_layer`` the first layer's stay float32, see ``Float32Linear``).
+    (its products computed in ``precision``, see ``hidden_precision``).
     """
 
     def __init__(
-        self,
-        obs_dim: int,
-        sizes: tuple[int, ...] = ENCODER_SIZES,
-        precision: str = "float32",
-        float32_input_layer: bool = False,
+        self, obs_dim: int, sizes: tuple[int, ...] = ENCODER_SIZES, precision: str = "float32"
     ) -> None:
         super().__init__()
         self.obs_dim = int(obs_dim)
-        self.net = mlp(self.obs_dim, tuple(sizes), layer_norm=True, float32_first=float32_input_layer)
+        self.net = mlp(self.obs_dim, tuple(sizes), layer_norm=True)
         self.latent_dim = int(sizes[-1])
         self.precision = checked_precision(precision)
 

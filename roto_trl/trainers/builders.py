@@ -103,7 +103,6 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
         critic_encoder_sizes=cfg.agent.get("critic_encoder_sizes"),  # null: the policy encoder's
         action_log_prob=str(cfg.agent.get("action_log_prob", DEFAULT_ACTION_LOG_PROB)),  # old runs: gaussian
         precision=agent_precision(cfg),
-        float32_input_layer=bool(cfg.agent.get("float32_input_layer", False)),  # old runs: off
     )
     return agent.to(cfg.device)
 
