@@ -15,7 +15,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from torchrl.data import Unbounded
 
 from roto_trl.envs.batched_mujoco import PhysicsReading
 from roto_trl.envs.shadow_hand import N_HAND_JOINTS, ShadowHandEnv, ShadowTaskConfig
@@ -35,7 +34,6 @@ STATE_NAMES = (
     *("a_vx", "a_vy", "a_vz", "b_vx", "b_vy", "b_vz"),  # linear velocities
     "ball_distance",
 )
-STATE_SIZE = len(STATE_NAMES)
 
 
 def swap_targets(
@@ -91,14 +89,6 @@ class BaodingEnv(ShadowHandEnv):
         self._hand_centre = self._targets.mean(0)
         self._swaps = torch.zeros(self.num_envs, dtype=torch.long)
         self._fallen = torch.zeros(self.num_envs, dtype=torch.bool)
-
-    def _make_obs_spec(self) -> dict:
-        n = self.num_envs
-        return {
-            **self._robot_obs_spec(),
-            "state": Unbounded(shape=(n, STATE_SIZE), dtype=torch.float32),
-            "rotations": Unbounded(shape=(n, 1), dtype=torch.float32),
-        }
 
     def _sample_initial_state(self, idx: np.ndarray):
         n = len(idx)

@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from torchrl.data import Unbounded
 
 from roto_trl.envs.batched_mujoco import PhysicsReading
 from roto_trl.envs.robot_env import sensor_block, sensor_force
@@ -37,7 +36,6 @@ STATE_NAMES = (
     *("ball_wx", "ball_wy", "ball_wz"),
     "free_steps",
 )
-STATE_SIZE = len(STATE_NAMES)
 
 
 def count_bounces(
@@ -82,14 +80,6 @@ class BounceEnv(ShadowHandEnv):
         self._bounces = torch.zeros(self.num_envs, dtype=torch.long)
         self._fallen = torch.zeros(self.num_envs, dtype=torch.bool)
         self._centre = torch.tensor(FALL_CENTRE, dtype=torch.float64)
-
-    def _make_obs_spec(self) -> dict:
-        n = self.num_envs
-        return {
-            **self._robot_obs_spec(),
-            "state": Unbounded(shape=(n, STATE_SIZE), dtype=torch.float32),
-            "bounces": Unbounded(shape=(n, 1), dtype=torch.float32),
-        }
 
     def _sample_initial_state(self, idx: np.ndarray):
         n = len(idx)

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from torchrl.data import Unbounded
 
 from roto_trl.envs.robot_env import RobotTaskEnv, TaskConfig
 
@@ -68,6 +69,16 @@ class ShadowHandEnv(RobotTaskEnv):
     SENSORS = SENSOR_LINKS
     DEFAULT_POSE = CUPPED_POSE
     VEL_SCALE = 0.2
+
+    def _make_obs_spec(self) -> dict:
+        """The robot's entries, the privileged ``state`` [len(STATE_NAMES)] and one ``[1]`` entry
+        per episode metric (``METRICS``)."""
+        n = self.num_envs
+        return {
+            **self._robot_obs_spec(),
+            "state": Unbounded(shape=(n, len(self.STATE_NAMES)), dtype=torch.float32),
+            **{metric: Unbounded(shape=(n, 1), dtype=torch.float32) for metric in self.METRICS},
+        }
 
     def _index_robot(self, m) -> None:
         names = [m.joint(j).name for j in range(m.njnt)]
