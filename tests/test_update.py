@@ -238,8 +238,8 @@ def test_the_cpu_profile_takes_its_per_task_settings_from_the_task():
     evaluates on 128 worlds (its 0/1 metric needs them), Bounce's and Baoding's on 32; bounce_ppo
     and find_ppo (the two exps that set it) hold the std under a ceiling falling from 1 to 0.3
     over 0.6-0.9 of the run; find_fd (the exp that sets it) takes Adam's eps 1e-5, the others
-    torch's 1e-8; Bounce's matrix products are ``auto`` (bfloat16 where the CPU has them), Find's
-    and Baoding's float32."""
+    torch's 1e-8; Bounce's and Baoding's matrix products are ``auto`` (bfloat16 where the CPU has
+    them), Find's float32."""
     agent = Agent(("prop",), P, A)
     built = {}
     for exp in ("bounce_ppo", "bounce_fd", "find_ppo", "find_fd", "baoding_fd_mem"):
@@ -257,7 +257,7 @@ def test_the_cpu_profile_takes_its_per_task_settings_from_the_task():
         "bounce_fd": ("AdamW", 3.0, 1e-8, 32, None, "auto"),
         "find_ppo": ("Adam", 0.0, 1e-8, 128, late, "float32"),
         "find_fd": ("Adam", 0.0, 1e-5, 128, None, "float32"),
-        "baoding_fd_mem": ("Adam", 0.0, 1e-8, 32, None, "float32"),
+        "baoding_fd_mem": ("Adam", 0.0, 1e-8, 32, None, "auto"),
     }
     assert compose_cfg(["+exp=bounce_ppo"]).agent.precision == "float32"  # the paper's run
     kept = compose_cfg(["+exp=bounce_ppo", "+profile=cpu", "agent.precision=float32"])
