@@ -16,7 +16,7 @@ For each experiment and world count it measures, in one process:
 It prints frames/s, each phase's share of our iteration, ours / serial limit where the serial
 limit is 1 / (1/sim + 1/update) (collection and update run one after the other on the same
 cores), ours / best peer and the precision of our matrix products (``agent.precision`` resolved
-for this machine: ``+profile=cpu`` takes ``auto`` on Bounce, bfloat16 on a CPU with AMX or
+for this machine: ``+profile=cpu`` takes ``auto`` on Bounce and Baoding, bfloat16 on a CPU with AMX or
 AVX512-BF16; the peers run float32). Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
 ``--fused`` adds a column: the bare update with the other Adam (``agent.fused_adam`` negated);
 ``--compile`` runs ours and the bare update with ``agent.compile=true``; ``--profile cpu`` measures
