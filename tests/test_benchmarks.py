@@ -69,13 +69,16 @@ def test_env_breakdown_accounts_for_the_whole_step(physics):
     done = subprocess.run(command + ([] if physics else ["--no-physics"]), capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-2000:]
     row = next(line for line in done.stdout.splitlines() if line.startswith("bounce"))
-    resets, *parts, outside, share = (float(v.replace(",", "")) for v in row.split()[3:])
+    resets, *parts, outside, share, budget, floor = (float(v.replace(",", "")) for v in row.split()[3:])
+    physics_us, _, ours_reset, own_transforms, kept_transforms, torchrl = parts
     assert len(parts) == 6 and all(p >= 0 for p in parts)
     assert abs(outside - sum(parts[1:])) <= 3  # rounding of the printed parts
+    assert own_transforms > 0 and kept_transforms > 0  # both groups are timed, each its own
+    assert abs(floor - (kept_transforms + torchrl)) <= 2 and abs(budget - physics_us / 9) <= 1
     if physics:
-        assert parts[0] > 0 and 0.0 <= resets <= 1.0 and 0.0 < share < 1.0
+        assert physics_us > 0 and 0.0 <= resets <= 1.0 and 0.0 < share < 1.0
     else:  # frozen worlds: nothing falls, nothing resets, the Python parts are all there is
-        assert resets == 0.0 and parts[2] == parts[4] == 0.0 and share < 0.05
+        assert resets == 0.0 and ours_reset == 0.0 and share < 0.05
 
 
 def test_the_layer_norm_peer_runs_rsl_rl_with_our_encoder_layer_norms():
