@@ -13,9 +13,13 @@ For each experiment and world count it measures, in one process:
            interface, when installed (``pip install -e .[bench]``); they have no
            self-supervised objective, so for an SSL experiment (``bounce_fd``) they run its PPO
            values without it and ours / peer understates ours.
+  act      the policy acting alone: its forward pass and sample on each of a rollout's steps
+           (``N`` worlds at a time, the collector's inputs), no env;
 It prints frames/s, each phase's share of our iteration, ours / serial limit where the serial
 limit is 1 / (1/sim + 1/update) (collection and update run one after the other on the same
-cores), ours / best peer and the precision of our matrix products (``agent.precision`` resolved
+cores), ours / the same limit with acting added (1 / (1/sim + 1/update + 1/act): every PPO
+acts on every step, which the serial limit does not count, so the gap left here is our loop's
+own bookkeeping), ours / best peer and the precision of our matrix products (``agent.precision`` resolved
 for this machine: ``+profile=cpu`` takes ``auto`` on Bounce and Baoding, bfloat16 on a CPU with AMX or
 AVX512-BF16; the peers run float32). Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
 ``--fused`` adds a column: the bare update with the other Adam (``agent.fused_adam`` negated);
@@ -49,6 +53,7 @@ import time
 import torch
 from hydra import compose, initialize_config_dir
 from peers import PEERS  # benchmarks/peers.py (skrl and rsl_rl are imported only when they run)
+from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 from roto_trl.trainers.builders import (
     agent_for_env,
@@ -78,6 +83,18 @@ def sim_only(env, steps: int) -> float:
         td.set("action", torch.rand(n, n_actions) * 2 - 1)
         _, td = env.step_and_maybe_reset(td)
     return steps * n / (time.perf_counter() - start)
+
+
+@torch.no_grad()
+def acting_only(agent, batch) -> float:
+    """Seconds of the policy acting on every step of ``batch`` ``[N, R]``: its forward pass and
+    sample on each step's observations of the ``N`` worlds, as the collector calls it."""
+    steps = [batch[:, t].select(*agent.obs_keys).clone() for t in range(batch.shape[1])]
+    with set_exploration_type(ExplorationType.RANDOM):
+        start = time.perf_counter()
+        for td in steps:
+            agent.policy(td)
+    return time.perf_counter() - start
 
 
 def bare_update(cfg, agent, loss_fn, optimizer, params, aux, minibatch, aux_batch) -> float:
@@ -128,6 +145,8 @@ def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
     env.close()
     result = {k: v / iterations for k, v in phases.items()}
     result["fps"] = frames / sum(phases.values())
+    acting_only(agent, batch)  # warm-up
+    result["act"] = sum(acting_only(agent, batch) for _ in range(3)) / 3
     minibatch = agent.encode(buffer.sample()).detach().clone()
     aux_batch = None
     if aux is not None:  # one of the epoch's auxiliary minibatches (None while the memory is short)
@@ -186,6 +205,7 @@ def main() -> None:
     )
     header = (
         f"{'exp':<11} {'N':>5} {'ours':>7} {'sim':>7} {'update':>7} {'limit':>7} {'ours/lim':>8} "
+        f"{'act':>7} {'/lim+act':>8} "
         f"{'collect':>7} {'adv':>5} {'upd':>5} "
         + " ".join(f"{p:>{PEER_WIDTH[p]}}" for p in PEERS)
         + f" {'ours/peer':>9} {'products':>8}"
@@ -209,6 +229,8 @@ def main() -> None:
                 frames = n * int(cfg.agent.rollout_len)
                 update = frames / r["bare"]
                 limit = 1.0 / (1.0 / sim + 1.0 / update)
+                act = frames / r["act"]
+                with_acting = 1.0 / (1.0 / sim + 1.0 / update + 1.0 / act)
                 total = r["collect"] + r["advantages"] + r["update"]
                 peers = {p: None if args.no_peers else peer_fps(p, cfg, args.iterations) for p in PEERS}
                 best = max((v for v in peers.values() if v), default=None)
@@ -217,7 +239,8 @@ def main() -> None:
                 )
                 line = (
                     f"{exp:<11} {n:>5} {r['fps']:>7,.0f} {sim:>7,.0f} {update:>7,.0f} {limit:>7,.0f} "
-                    f"{r['fps'] / limit:>8.2f} {r['collect'] / total:>7.0%} {r['advantages'] / total:>5.0%} "
+                    f"{r['fps'] / limit:>8.2f} {act:>7,.0f} {r['fps'] / with_acting:>8.2f} "
+                    f"{r['collect'] / total:>7.0%} {r['advantages'] / total:>5.0%} "
                     f"{r['update'] / total:>5.0%} {cells} "
                     + (f"{r['fps'] / best:>9.2f}" if best else f"{'-':>9}")
                     + f" {agent_precision(cfg):>8}"
