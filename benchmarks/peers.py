@@ -17,6 +17,7 @@ installed (``.[bench]``).
 from __future__ import annotations
 
 import functools
+import logging
 import math
 import time
 
@@ -41,6 +42,7 @@ def critic_sizes(cfg) -> tuple[int, ...]:
 
 
 def skrl_fps(cfg, iterations: int) -> float:
+    import skrl
     from skrl.agents.torch.ppo import PPO, PPO_CFG
     from skrl.envs.wrappers.torch import wrap_env
     from skrl.memories.torch import RandomMemory
@@ -71,6 +73,7 @@ def skrl_fps(cfg, iterations: int) -> float:
         def compute(self, inputs, role=""):
             return self.head(self.encoder(inputs["observations"])), {}
 
+    skrl.logger.setLevel(logging.WARNING)  # its INFO line per wrapped env would split the table
     env = wrap_env(_vec_env(cfg), wrapper="gymnasium")
     a = cfg.agent
     rollout = int(a.rollout_len)
