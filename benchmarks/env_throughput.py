@@ -9,7 +9,7 @@ For every task, N and thread count it times, in the same process and one after t
   gym    ``gymnasium.make_vec("RoTO/<Task>-v0")`` stepped with random actions (numpy in and out,
          same-step autoreset): the Gymnasium interface's cost on top of the env.
 Rounds alternate (median reported) so that drift in the machine's speed hits all three. The
-ratio env / raw is the figure of merit (goal: >= 0.9 at N=1024, 2 threads).
+ratio env / raw is the figure of merit (goal: >= 0.9 at N=256 and 1024, 2 threads).
 
 With ``--breakdown`` it prints instead where an env step's wall time goes, in microseconds per
 control step (each part without the parts it calls): the physics (``mujoco.rollout``, the reset

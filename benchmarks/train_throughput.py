@@ -19,7 +19,8 @@ It prints frames/s, each phase's share of our iteration, ours / serial limit whe
 limit is 1 / (1/sim + 1/update) (collection and update run one after the other on the same
 cores), ours / the same limit with acting added (1 / (1/sim + 1/update + 1/act): every PPO
 acts on every step, which the serial limit does not count, so the gap left here is our loop's
-own bookkeeping), ours / best peer and the precision of our matrix products (``agent.precision`` resolved
+own bookkeeping and the small operations' slowdown between phases, which the parts timed back to
+back do not pay), ours / best peer and the precision of our matrix products (``agent.precision`` resolved
 for this machine: ``+profile=cpu`` takes ``auto`` on Bounce and Baoding, bfloat16 on a CPU with AMX or
 AVX512-BF16; the peers run float32). Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
 ``--fused`` adds a column: the bare update with the other Adam (``agent.fused_adam`` negated);
