@@ -63,7 +63,6 @@ TCP_POS = (0.0, 0.0, 0.25)
 TCP_QUAT = (0.9238795, 0.0, 0.0, -0.3826834)
 # the privileged state (never an agent input; the mutual-information analysis reads it), in order
 STATE_NAMES = ("sphere_x", "sphere_y", "sphere_z", "ee_x", "ee_y", "ee_z")
-STATE_SIZE = len(STATE_NAMES)
 
 
 def first_times(
@@ -200,7 +199,7 @@ class FindEnv(RobotTaskEnv):
             "ee_pos": Unbounded(shape=(n, 3), dtype=torch.float32),
             "ee_quat": Unbounded(shape=(n, 4), dtype=torch.float32),
             "gripper_width": Unbounded(shape=(n, 1), dtype=torch.float32),
-            "state": Unbounded(shape=(n, STATE_SIZE), dtype=torch.float32),
+            "state": Unbounded(shape=(n, len(self.STATE_NAMES)), dtype=torch.float32),
             "object_distance": Unbounded(shape=(n, 1), dtype=torch.float32),
             "find_time": Unbounded(shape=(n, len(self.config.tolerances)), dtype=torch.float32),
         }
