@@ -1,28 +1,33 @@
 """Training frames/s beside its two limits and the peers, on the same task, worlds, network and values.
 
-For each experiment and world count it measures, in one process:
+For each experiment and world count it measures, in one process and round by round (each timed
+iteration of ours is a round; sim, act and update are timed right after it, for the same frames,
+so the VM's drift between minutes hits ours and its limits alike):
   ours     ``roto_trl/train.py``'s iteration (collector with the policy acting, advantages, PPO
            update, and the SSL step where the experiment has one), evaluation excluded;
-  sim      the same env stepped with random actions through ``step_and_maybe_reset``;
+  sim      a second env of the same config stepped as many steps with random actions through
+           ``step_and_maybe_reset`` (episodes end and reset as in training);
   update   the bare update: ``epochs x minibatches`` steps of forward + backward + optimiser of
            the same agent and losses (``ClipPPOLoss``, the SSL loss) on one minibatch of the
-           real rollout drawn once, so no sampling, advantages or logging (the mean of three
-           rounds, as ours is the mean of its timed iterations);
+           round's rollout, so no sampling, advantages or logging (the agent's weights are put
+           back after it);
+  act      the policy acting alone: its forward pass and sample on each of the round's rollout
+           steps (``N`` worlds at a time, the collector's inputs), no env;
   skrl, rsl_rl  their PPO (same 1024-512-256 ELU network, R, mb, le, lr, clip values; rsl_rl's
            MLP without LayerNorm, ``rsl_rl_ln`` the same with our LayerNorms) on our Gymnasium
            interface, when installed (``pip install -e .[bench]``); they have no
            self-supervised objective, so for an SSL experiment (``bounce_fd``) they run its PPO
            values without it and ours / peer understates ours.
-  act      the policy acting alone: its forward pass and sample on each of a rollout's steps
-           (``N`` worlds at a time, the collector's inputs), no env;
 It prints frames/s, each phase's share of our iteration, ours / serial limit where the serial
 limit is 1 / (1/sim + 1/update) (collection and update run one after the other on the same
 cores), ours / the same limit with acting added (1 / (1/sim + 1/update + 1/act): every PPO
 acts on every step, which the serial limit does not count, so the gap left here is our loop's
-own bookkeeping and the small operations' slowdown between phases, which the parts timed back to
-back do not pay), ours / best peer and the precision of our matrix products (``agent.precision`` resolved
-for this machine: ``+profile=cpu`` takes ``auto`` on Bounce and Baoding, bfloat16 on a CPU with AMX or
-AVX512-BF16; the peers run float32). Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
+own bookkeeping and the small operations' slowdown between phases, which the parts timed back
+to back do not pay), ``lim range`` (the lowest and highest ours / serial limit of the single
+rounds; the other figures are over all rounds together), ours / best peer and the precision of
+our matrix products (``agent.precision`` resolved for this machine: ``+profile=cpu`` takes
+``auto`` on Bounce and Baoding, bfloat16 on a CPU with AMX or AVX512-BF16; the peers run
+float32). Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
 ``--fused`` adds a column: the bare update with the other Adam (``agent.fused_adam`` negated);
 ``--compile`` runs ours and the bare update with ``agent.compile=true``; ``--profile cpu`` measures
 the CPU recipe (``+profile=cpu``: separate critic, KL-adaptive rate, 8 minibatches; the peers
@@ -46,6 +51,7 @@ import roto_trl  # noqa: F401  first, before torch loads: sets how its OpenMP th
 # isort: split
 import argparse
 import contextlib
+import copy
 import importlib.util
 import io
 import logging
@@ -75,15 +81,15 @@ from roto_trl.utils.resources import resource_dir
 PEER_WIDTH = {p: max(7, len(p)) for p in PEERS}  # each peer's column width
 
 
-def sim_only(env, steps: int) -> float:
-    """Control steps/s of ``env`` under random actions (episodes end and reset as in training)."""
+def sim_seconds(env, td, steps: int):
+    """Seconds of ``steps`` control steps of ``env`` under random actions, going on from ``td``
+    (episodes end and reset as in training), and the tensordict to go on from next time."""
     n, n_actions = env.batch_size[0], env.base_env.n_actions
-    td = env.reset()
     start = time.perf_counter()
     for _ in range(steps):
         td.set("action", torch.rand(n, n_actions) * 2 - 1)
         _, td = env.step_and_maybe_reset(td)
-    return steps * n / (time.perf_counter() - start)
+    return time.perf_counter() - start, td
 
 
 @torch.no_grad()
@@ -101,19 +107,30 @@ def acting_only(agent, batch) -> float:
 def bare_update(cfg, agent, loss_fn, optimizer, params, aux, minibatch, aux_batch) -> float:
     """Seconds of one iteration's updates (``epochs x minibatches`` steps) on fixed minibatches:
     the paper's Eq. 2 as training does it (``minibatch_step``: one backward of L_PPO + c_aux L_aux,
-    then the PPO optimiser and, with an SSL objective, the auxiliary one and the target EMA)."""
+    then the PPO optimiser and, with an SSL objective, the auxiliary one and the target EMA).
+    The agent's weights are put back after it (untimed), so that what our next iteration collects
+    does not depend on these steps on one minibatch."""
     a = cfg.agent
+    weights = copy.deepcopy(agent.state_dict())
     start = time.perf_counter()
     for _ in range(int(a.epochs) * int(a.minibatches)):
         data = None if aux_batch is None else aux_batch.clone(False)
         minibatch_step(agent, loss_fn, optimizer, params, a.max_grad_norm, minibatch.clone(False), aux, data)
-    return time.perf_counter() - start
+    seconds = time.perf_counter() - start
+    agent.load_state_dict(weights)
+    return seconds
 
 
-def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
-    """Our training's frames/s and seconds per phase per iteration, and the bare update's seconds."""
+def measure(cfg, iterations: int, fused: bool) -> list[dict[str, float]]:
+    """One round per timed iteration (after one warm-up round): the seconds of our iteration's
+    phases, then, right after it and on its rollout, of the limits' parts for the same frames:
+    a second env stepped as many steps with random actions (``sim``), the policy acting alone
+    (``act``) and the bare update (``bare``; ``bare_other`` with ``--fused``). Measured round by
+    round, the VM's drift (a tenth or more between minutes) hits ours and its limits alike."""
     torch.manual_seed(0)
     env = make_train_env(cfg)
+    sim_env = make_train_env(cfg)
+    sim_td = sim_env.reset()
     agent = agent_for_env(cfg, env)
     compile_agent(cfg, agent)
     loss_fn = make_ppo_loss(cfg, agent)
@@ -124,8 +141,11 @@ def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
     collector = make_collector(cfg, env, agent)
     buffer = make_rollout_buffer(cfg)
     keys = minibatch_keys(agent, loss_fn)
-    phases = {"collect": 0.0, "advantages": 0.0, "update": 0.0}
-    frames = 0
+    updates = {"bare": make_optimizer(cfg, agent)}
+    if fused:
+        other = not bool(cfg.agent.fused_adam)
+        updates["bare_other"] = torch.optim.Adam(agent.parameters(), lr=float(cfg.agent.lr), fused=other)
+    rounds = []
     t_collect = time.perf_counter()
     for i, batch in enumerate(collector):
         collect = time.perf_counter() - t_collect
@@ -134,37 +154,24 @@ def measure(cfg, iterations: int, fused: bool) -> dict[str, float]:
         t1 = time.perf_counter()
         ppo_update(cfg, buffer, agent, loss_fn, optimizer, params, aux)
         t2 = time.perf_counter()
-        if i > 0:  # iteration 0 warms up
-            frames += batch.numel()
-            phases["collect"] += collect
-            phases["advantages"] += t1 - t0
-            phases["update"] += t2 - t1
+        r = {"frames": batch.numel(), "collect": collect, "advantages": t1 - t0, "update": t2 - t1}
+        r["sim"], sim_td = sim_seconds(sim_env, sim_td, batch.shape[1])
+        r["act"] = acting_only(agent, batch)
+        minibatch = agent.encode(buffer.sample()).detach().clone()
+        aux_batch = None  # one of the epoch's auxiliary minibatches (None while the memory is short)
+        if aux is not None:
+            aux_batch = next(aux.epoch(int(cfg.agent.minibatches)), None)
+        for name, opt in updates.items():
+            r[name] = bare_update(cfg, agent, loss_fn, opt, params, aux, minibatch, aux_batch)
+        if i > 0:  # round 0 warms every part up
+            rounds.append(r)
         if i == iterations:
             break
         t_collect = time.perf_counter()
     collector.shutdown()
     env.close()
-    result = {k: v / iterations for k, v in phases.items()}
-    result["fps"] = frames / sum(phases.values())
-    acting_only(agent, batch)  # warm-up
-    result["act"] = sum(acting_only(agent, batch) for _ in range(3)) / 3
-    minibatch = agent.encode(buffer.sample()).detach().clone()
-    aux_batch = None
-    if aux is not None:  # one of the epoch's auxiliary minibatches (None while the memory is short)
-        aux_batch = next(aux.epoch(int(cfg.agent.minibatches)), None)
-    updates = {"bare": make_optimizer(cfg, agent)}
-    if fused:
-        other = not bool(cfg.agent.fused_adam)
-        updates["bare_other"] = torch.optim.Adam(agent.parameters(), lr=float(cfg.agent.lr), fused=other)
-    for opt in updates.values():
-        bare_update(cfg, agent, loss_fn, opt, params, aux, minibatch, aux_batch)  # warm-up
-    rounds = 3  # alternating, so drift hits both Adams alike; their mean, as ours is a mean over
-    # iterations (the fastest round against the mean iteration would understate ours / limit)
-    result.update(dict.fromkeys(updates, 0.0))
-    for _ in range(rounds):
-        for name, opt in updates.items():
-            result[name] += bare_update(cfg, agent, loss_fn, opt, params, aux, minibatch, aux_batch) / rounds
-    return result
+    sim_env.close()
+    return rounds
 
 
 def peer_fps(peer: str, cfg, iterations: int) -> float | None:
@@ -206,7 +213,7 @@ def main() -> None:
     )
     header = (
         f"{'exp':<11} {'N':>5} {'ours':>7} {'sim':>7} {'update':>7} {'limit':>7} {'ours/lim':>8} "
-        f"{'act':>7} {'/lim+act':>8} "
+        f"{'act':>7} {'/lim+act':>8} {'lim range':>9} "
         f"{'collect':>7} {'adv':>5} {'upd':>5} "
         + " ".join(f"{p:>{PEER_WIDTH[p]}}" for p in PEERS)
         + f" {'ours/peer':>9} {'products':>8}"
@@ -223,31 +230,33 @@ def main() -> None:
                 overrides += args.set
                 cfg = compose("train", overrides=overrides)
                 apply_rollout_floor(cfg)  # as train.py: the profile's minimum rollout
-                sim_env = make_train_env(cfg)
-                sim = sim_only(sim_env, int(cfg.agent.rollout_len) * 2)
-                sim_env.close()
-                r = measure(cfg, args.iterations, args.fused)
-                frames = n * int(cfg.agent.rollout_len)
-                update = frames / r["bare"]
-                limit = 1.0 / (1.0 / sim + 1.0 / update)
-                act = frames / r["act"]
-                with_acting = 1.0 / (1.0 / sim + 1.0 / update + 1.0 / act)
+                rounds = measure(cfg, args.iterations, args.fused)
+                r = {k: sum(rnd[k] for rnd in rounds) for k in rounds[0]}  # totals over the rounds
                 total = r["collect"] + r["advantages"] + r["update"]
+                fps = r["frames"] / total
+                sim, update, act = (r["frames"] / r[k] for k in ("sim", "bare", "act"))
+                limit = r["frames"] / (r["sim"] + r["bare"])  # 1 / (1/sim + 1/update)
+                with_acting = r["frames"] / (r["sim"] + r["bare"] + r["act"])
+                per_round = [
+                    (rnd["sim"] + rnd["bare"]) / (rnd["collect"] + rnd["advantages"] + rnd["update"])
+                    for rnd in rounds
+                ]
                 peers = {p: None if args.no_peers else peer_fps(p, cfg, args.iterations) for p in PEERS}
                 best = max((v for v in peers.values() if v), default=None)
                 cells = " ".join(
                     f"{v:>{PEER_WIDTH[p]},.0f}" if v else f"{'-':>{PEER_WIDTH[p]}}" for p, v in peers.items()
                 )
                 line = (
-                    f"{exp:<11} {n:>5} {r['fps']:>7,.0f} {sim:>7,.0f} {update:>7,.0f} {limit:>7,.0f} "
-                    f"{r['fps'] / limit:>8.2f} {act:>7,.0f} {r['fps'] / with_acting:>8.2f} "
+                    f"{exp:<11} {n:>5} {fps:>7,.0f} {sim:>7,.0f} {update:>7,.0f} {limit:>7,.0f} "
+                    f"{fps / limit:>8.2f} {act:>7,.0f} {fps / with_acting:>8.2f} "
+                    f"{f'{min(per_round):.2f}-{max(per_round):.2f}':>9} "
                     f"{r['collect'] / total:>7.0%} {r['advantages'] / total:>5.0%} "
                     f"{r['update'] / total:>5.0%} {cells} "
-                    + (f"{r['fps'] / best:>9.2f}" if best else f"{'-':>9}")
+                    + (f"{fps / best:>9.2f}" if best else f"{'-':>9}")
                     + f" {agent_precision(cfg):>8}"
                 )
                 if args.fused:
-                    line += f"  {frames / r['bare_other']:>10,.0f}"
+                    line += f"  {r['frames'] / r['bare_other']:>10,.0f}"
                 print(line, flush=True)
 
 
