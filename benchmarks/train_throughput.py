@@ -55,6 +55,7 @@ import copy
 import importlib.util
 import io
 import logging
+import sys
 import time
 
 import torch
@@ -229,7 +230,8 @@ def main() -> None:
                 overrides += ["agent.compile=true"] if args.compile else []
                 overrides += args.set
                 cfg = compose("train", overrides=overrides)
-                apply_rollout_floor(cfg)  # as train.py: the profile's minimum rollout
+                with contextlib.redirect_stdout(sys.stderr):  # its one line would split the table
+                    apply_rollout_floor(cfg)  # as train.py: the profile's minimum rollout
                 rounds = measure(cfg, args.iterations, args.fused)
                 r = {k: sum(rnd[k] for rnd in rounds) for k in rounds[0]}  # totals over the rounds
                 total = r["collect"] + r["advantages"] + r["update"]
