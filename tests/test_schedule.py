@@ -1,13 +1,23 @@
 """Evaluation scheduled by frames, its share of the wall time, a progress bar that moves while the
-collector steps, and the compiled agent (slow)."""
+collector steps, and the compiled agent and loss (slow)."""
 
 import pytest
 from helpers import TINY, compose_cfg
 
 from roto_trl.train import train
-from roto_trl.trainers.builders import agent_for_env, make_collector, make_eval_env, make_train_env
+from roto_trl.trainers.builders import (
+    agent_for_env,
+    compile_agent,
+    make_advantage,
+    make_collector,
+    make_eval_env,
+    make_ppo_loss,
+    make_rollout_buffer,
+    make_train_env,
+)
 from roto_trl.trainers.checkpoint import load_checkpoint
 from roto_trl.trainers.evaluation import evaluate, selection_key
+from roto_trl.trainers.ppo import minibatch_keys, minibatch_loss, store_rollout
 from roto_trl.trainers.progress import TrainingProgress, estimate_line, format_duration, time_to_budget
 from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due, evaluations_left
 
@@ -99,4 +109,33 @@ def test_a_compiled_agent_trains_and_its_checkpoint_loads_uncompiled(tmp_path):
     cfg = compose_cfg(["+exp=bounce_ppo", *TINY])
     env = make_train_env(cfg)
     agent_for_env(cfg, env).load_state_dict(load_checkpoint(run)["agent"])  # same parameter names
+    env.close()
+
+
+@pytest.mark.slow
+def test_agent_compile_compiles_the_critic_encoder_and_the_ppo_loss_which_match_eager():
+    separate_critic = ["agent.shared_encoder=false", "agent.critic_encoder_sizes=[64,32]"]
+    cfg = compose_cfg(["+exp=bounce_ppo", *TINY, *separate_critic])
+    compiled_cfg = compose_cfg(["+exp=bounce_ppo", *TINY, *separate_critic, "agent.compile=true"])
+    env = make_train_env(cfg)
+    agent = agent_for_env(cfg, env)
+    loss_fn = make_ppo_loss(cfg, agent)
+    compiled = agent_for_env(compiled_cfg, env)
+    compiled.load_state_dict(agent.state_dict())
+    compile_agent(compiled_cfg, compiled)
+    compiled_loss = make_ppo_loss(compiled_cfg, compiled)
+    networks = (compiled.encoder, compiled.value_encoder, compiled.policy_head, compiled.value_head)
+    assert all(m._compiled_call_impl is not None for m in (*networks, compiled_loss))
+    assert loss_fn._compiled_call_impl is None
+    collector = make_collector(cfg, env, agent)
+    buffer = make_rollout_buffer(cfg)
+    keys = minibatch_keys(agent, loss_fn)
+    store_rollout(next(iter(collector)), agent, make_advantage(cfg), buffer, keys=keys)
+    collector.shutdown()
+    minibatch = buffer.sample()
+    total, losses, _ = minibatch_loss(agent, loss_fn, minibatch.clone())
+    compiled_total, compiled_losses, _ = minibatch_loss(compiled, compiled_loss, minibatch.clone())
+    assert abs(compiled_total.item() - total.item()) <= 1e-5 * max(1.0, abs(total.item()))
+    for key in ("loss_objective", "loss_critic", "loss_entropy", "kl_approx", "clip_fraction"):
+        assert abs(float(compiled_losses[key]) - float(losses[key])) <= 1e-5, key
     env.close()
