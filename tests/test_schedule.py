@@ -137,5 +137,5 @@ def test_agent_compile_compiles_the_critic_encoder_and_the_ppo_loss_which_match_
     compiled_total, compiled_losses, _ = minibatch_loss(compiled, compiled_loss, minibatch.clone())
     assert abs(compiled_total.item() - total.item()) <= 1e-5 * max(1.0, abs(total.item()))
     for key in ("loss_objective", "loss_critic", "loss_entropy", "kl_approx", "clip_fraction"):
-        assert abs(float(compiled_losses[key]) - float(losses[key])) <= 1e-5, key
+        assert abs(compiled_losses[key].item() - losses[key].item()) <= 1e-5, key
     env.close()
