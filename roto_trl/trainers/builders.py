@@ -107,6 +107,15 @@ def agent_for_env(cfg, env: TransformedEnv) -> Agent:
     return agent.to(cfg.device)
 
 
+# the agent's networks by attribute name; ``value_encoder`` exists only without the shared encoder
+AGENT_PARTS = ("encoder", "policy_head", "value_head", "value_encoder")
+
+
+def agent_parts(agent: Agent, names: Sequence[str] = AGENT_PARTS) -> list[torch.nn.Module]:
+    """The agent's networks named in ``names`` that it has (``AGENT_PARTS``)."""
+    return [getattr(agent, name) for name in names if hasattr(agent, name)]
+
+
 def compile_on(cfg) -> bool:
     """``agent.compile``: ``torch.compile`` the agent's networks (``compile_agent``) and the PPO loss
     (``make_ppo_loss``); configs saved before the option: off."""
@@ -126,10 +135,8 @@ def compile_agent(cfg, agent: Agent) -> None:
     --compile`` did not resolve either difference from its noise (README, Throughput).
     """
     if compile_on(cfg):
-        critic = getattr(agent, "value_encoder", None)  # the critic's own encoder (the recipe's)
-        for module in (agent.encoder, agent.policy_head, agent.value_head, critic):
-            if module is not None:
-                module.compile()
+        for module in agent_parts(agent):  # the critic's own encoder too, where it has one
+            module.compile()
 
 
 def make_ppo_loss(cfg, agent: Agent) -> ClipPPOLoss:
@@ -348,7 +355,7 @@ def weight_decay(value) -> float:
     return non_negative_or_off("agent.weight_decay", value, example="1.0")
 
 
-DECAYABLE_PARTS = ("encoder", "policy_head", "value_head", "value_encoder")
+DECAYABLE_PARTS = AGENT_PARTS  # every network's weight matrices may decay
 
 
 def weight_decay_parts(value) -> tuple[str, ...]:
@@ -430,13 +437,7 @@ def make_optimizer(cfg, agent: Agent) -> torch.optim.Optimizer:
     groups = [{"params": networks}]  # without decay one group, as checkpoints from before it hold
     if decay > 0.0:
         parts = weight_decay_parts(a.get("weight_decay_parts"))  # older runs lack the key: all
-        decayed = {
-            id(p)
-            for part in parts
-            if hasattr(agent, part)
-            for p in getattr(agent, part).parameters()
-            if p.dim() >= 2
-        }
+        decayed = {id(p) for part in agent_parts(agent, parts) for p in part.parameters() if p.dim() >= 2}
         groups = [
             {"params": [p for p in networks if id(p) in decayed], "weight_decay": decay},
             {"params": [p for p in networks if id(p) not in decayed], "weight_decay": 0.0},
