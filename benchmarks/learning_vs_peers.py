@@ -39,15 +39,15 @@ import roto_trl  # noqa: F401  first, before torch loads: sets how its OpenMP th
 # isort: split
 import numpy as np
 import torch
-from hydra import compose, initialize_config_dir
 from omegaconf import DictConfig, OmegaConf
 
 from roto_trl.analysis.checkpoint_eval import evaluate_checkpoint, load_run
 from roto_trl.analysis.stability import training_at
 from roto_trl.analysis.table import parse_frames
+from roto_trl.config import checked_config, compose_train
 from roto_trl.envs.factory import TASKS
 from roto_trl.trainers.builders import eval_seed
-from roto_trl.utils.resources import TRAIN_SCRIPT, resource_dir
+from roto_trl.utils.resources import TRAIN_SCRIPT
 
 PROGRESS_LINES = 10  # rsl_rl's progress lines over its budget
 FINAL_ACTIONS = ("gaussian_mean", "applied_mean")  # the final policies' deterministic actions
@@ -118,16 +118,8 @@ def ours_final(args, out: Path) -> dict[str, dict[str, float]]:
 
 def peer_config(args) -> DictConfig:
     """The experiment's config as the peer runs it: its worlds, seed and physics threads."""
-    with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
-        return compose(
-            "train",
-            overrides=[
-                f"+exp={args.exp}",
-                f"env.num_envs={args.num_envs}",
-                f"seed={args.seed}",
-                *threads_overrides(args.threads)[1:],
-            ],
-        )
+    overrides = [f"+exp={args.exp}", f"env.num_envs={args.num_envs}", f"seed={args.seed}"]
+    return checked_config(compose_train([*overrides, *threads_overrides(args.threads)[1:]]))
 
 
 def rsl_rl(

@@ -33,12 +33,12 @@ from roto_trl.modules.networks import ENCODER_SIZES, Encoder, PolicyHead, ValueH
 
 def _vec_env(cfg):
     overrides = dict(cfg.env.overrides or {})
-    return gymnasium.make_vec(ENV_IDS[cfg.env.task], num_envs=int(cfg.env.num_envs), **overrides)
+    return gymnasium.make_vec(ENV_IDS[str(cfg.env.task)], num_envs=int(cfg.env.num_envs), **overrides)
 
 
 def critic_sizes(cfg) -> tuple[int, ...]:
     """The critic's hidden layers, as our separate critic has them (``agent.critic_encoder_sizes``)."""
-    return checked_critic_sizes(cfg.agent.get("critic_encoder_sizes"), shared_encoder=False)
+    return checked_critic_sizes(cfg.agent.critic_encoder_sizes, shared_encoder=False)
 
 
 def skrl_fps(cfg, iterations: int) -> float:
@@ -255,7 +255,7 @@ def rsl_rl_evaluate(cfg, runner, episodes: int, seed: int, action: str) -> dict[
     if action not in DETERMINISTIC_ACTIONS:
         raise ValueError(f"action={action!r}: choose one of {DETERMINISTIC_ACTIONS}")
     policy = runner.get_inference_policy()
-    envs = gymnasium.make_vec(ENV_IDS[cfg.env.task], num_envs=episodes, **dict(cfg.env.overrides or {}))
+    envs = gymnasium.make_vec(ENV_IDS[str(cfg.env.task)], num_envs=episodes, **dict(cfg.env.overrides or {}))
     base = envs.unwrapped.env.base_env
     columns = base.metric_columns()
     final = {name: torch.full((episodes,), math.nan) for _, _, name in columns}

@@ -28,7 +28,6 @@ rounds; the other figures are over all rounds together), ours / best peer and th
 our matrix products (``agent.precision`` resolved for this machine: ``+profile=cpu`` takes
 ``auto`` on Bounce and Baoding, bfloat16 on a CPU with AMX or AVX512-BF16; the peers run
 float32). Goals: >= 0.9 of the serial limit, >= 1.0 of the best peer.
-``--fused`` adds a column: the bare update with the other Adam (``agent.fused_adam`` negated);
 ``--compile`` runs ours and the bare update with ``agent.compile=true``; ``--profile cpu`` measures
 the CPU recipe (``+profile=cpu``: separate critic, KL-adaptive rate, 8 minibatches; the peers
 take its minibatch count too) at each ``--num-envs``; ``--set KEY=VALUE ...`` adds Hydra overrides
@@ -36,7 +35,7 @@ take its minibatch count too) at each ``--num-envs``; ``--set KEY=VALUE ...`` ad
 
     python benchmarks/train_throughput.py          # bounce_ppo and bounce_fd at 256 and 1024 worlds
     python benchmarks/train_throughput.py --exps bounce_ppo --num-envs 256 --iterations 2
-    python benchmarks/train_throughput.py --exps baoding_ppo --num-envs 1024 --no-peers --fused
+    python benchmarks/train_throughput.py --exps baoding_ppo --num-envs 1024 --no-peers
     python benchmarks/train_throughput.py --profile cpu --iterations 2   # the recipe a CPU user runs
     python benchmarks/train_throughput.py --exps bounce_ppo --profile cpu \\
         --set 'agent.critic_encoder_sizes=[256,128]'      # the recipe with a smaller critic
@@ -59,24 +58,16 @@ import sys
 import time
 
 import torch
-from hydra import compose, initialize_config_dir
 from peers import PEERS  # benchmarks/peers.py (skrl and rsl_rl are imported only when they run)
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
+from roto_trl.config import checked_config, compose_train, settle_for_machine
 from roto_trl.trainers.builders import (
     agent_for_env,
-    agent_precision,
-    apply_rollout_floor,
-    compile_agent,
-    make_advantage,
-    make_aux_update,
     make_collector,
-    make_optimizer,
-    make_ppo_loss,
-    make_rollout_buffer,
     make_train_env,
+    make_update,
 )
-from roto_trl.trainers.ppo import minibatch_keys, minibatch_step, ppo_update, store_rollout
 from roto_trl.utils.resources import resource_dir
 
 PEER_WIDTH = {p: max(7, len(p)) for p in PEERS}  # each peer's column width
@@ -105,65 +96,52 @@ def acting_only(agent, batch) -> float:
     return time.perf_counter() - start
 
 
-def bare_update(cfg, agent, loss_fn, optimizer, params, aux, minibatch, aux_batch) -> float:
+def bare_update(update, minibatch, aux_batch) -> float:
     """Seconds of one iteration's updates (``epochs x minibatches`` steps) on fixed minibatches:
-    the paper's Eq. 2 as training does it (``minibatch_step``: one backward of L_PPO + c_aux L_aux,
-    then the PPO optimiser and, with an SSL objective, the auxiliary one and the target EMA).
-    The agent's weights are put back after it (untimed), so that what our next iteration collects
-    does not depend on these steps on one minibatch."""
-    a = cfg.agent
-    weights = copy.deepcopy(agent.state_dict())
+    the paper's Eq. 2 as training does it (``PPOUpdate.step``: one backward of L_PPO + c_aux
+    L_aux, then the PPO optimiser and, with an SSL objective, the auxiliary one and the target
+    EMA). The update's state (weights, optimisers) is put back after it (untimed), so that what
+    our next iteration collects does not depend on these steps on one minibatch."""
+    saved = copy.deepcopy(update.state_dict())
     start = time.perf_counter()
-    for _ in range(int(a.epochs) * int(a.minibatches)):
+    for _ in range(update.epochs * update.minibatches):
         data = None if aux_batch is None else aux_batch.clone(False)
-        minibatch_step(agent, loss_fn, optimizer, params, a.max_grad_norm, minibatch.clone(False), aux, data)
+        update.step(minibatch.clone(False), data)
     seconds = time.perf_counter() - start
-    agent.load_state_dict(weights)
+    update.load_state_dict(saved)
     return seconds
 
 
-def measure(cfg, iterations: int, fused: bool) -> list[dict[str, float]]:
+def measure(cfg, iterations: int) -> list[dict[str, float]]:
     """One round per timed iteration (after one warm-up round): the seconds of our iteration's
     phases, then, right after it and on its rollout, of the limits' parts for the same frames:
     a second env stepped as many steps with random actions (``sim``), the policy acting alone
-    (``act``) and the bare update (``bare``; ``bare_other`` with ``--fused``). Measured round by
-    round, the VM's drift (a tenth or more between minutes) hits ours and its limits alike."""
+    (``act``) and the bare update (``bare``). Measured round by round, the machine's drift
+    between minutes hits ours and its limits alike."""
     torch.manual_seed(0)
     env = make_train_env(cfg)
     sim_env = make_train_env(cfg)
     sim_td = sim_env.reset()
     agent = agent_for_env(cfg, env)
-    compile_agent(cfg, agent)
-    loss_fn = make_ppo_loss(cfg, agent)
-    advantage = make_advantage(cfg)
-    optimizer = make_optimizer(cfg, agent)
-    aux = make_aux_update(cfg, agent, env)
-    params = list(agent.parameters())
+    update = make_update(cfg, agent, env)
     collector = make_collector(cfg, env, agent)
-    buffer = make_rollout_buffer(cfg)
-    keys = minibatch_keys(agent, loss_fn)
-    updates = {"bare": make_optimizer(cfg, agent)}
-    if fused:
-        other = not bool(cfg.agent.fused_adam)
-        updates["bare_other"] = torch.optim.Adam(agent.parameters(), lr=float(cfg.agent.lr), fused=other)
     rounds = []
     t_collect = time.perf_counter()
     for i, batch in enumerate(collector):
         collect = time.perf_counter() - t_collect
         t0 = time.perf_counter()
-        store_rollout(batch, agent, advantage, buffer, aux, keys=keys)
+        update.store(batch)
         t1 = time.perf_counter()
-        ppo_update(cfg, buffer, agent, loss_fn, optimizer, params, aux)
+        update.update()
         t2 = time.perf_counter()
         r = {"frames": batch.numel(), "collect": collect, "advantages": t1 - t0, "update": t2 - t1}
         r["sim"], sim_td = sim_seconds(sim_env, sim_td, batch.shape[1])
         r["act"] = acting_only(agent, batch)
-        minibatch = agent.encode(buffer.sample()).detach().clone()
+        minibatch = agent.encode(update.buffer.sample()).detach().clone()
         aux_batch = None  # one of the epoch's auxiliary minibatches (None while the memory is short)
-        if aux is not None:
-            aux_batch = next(aux.epoch(int(cfg.agent.minibatches)), None)
-        for name, opt in updates.items():
-            r[name] = bare_update(cfg, agent, loss_fn, opt, params, aux, minibatch, aux_batch)
+        if update.aux is not None:
+            aux_batch = next(update.aux.epoch(update.minibatches), None)
+        r["bare"] = bare_update(update, minibatch, aux_batch)
         if i > 0:  # round 0 warms every part up
             rounds.append(r)
         if i == iterations:
@@ -190,7 +168,6 @@ def main() -> None:
     parser.add_argument("--num-envs", nargs="+", type=int, default=[256, 1024])
     parser.add_argument("--iterations", type=int, default=3, help="timed iterations (after one warm-up)")
     parser.add_argument("--no-peers", action="store_true", help="skip skrl and rsl_rl")
-    parser.add_argument("--fused", action="store_true", help="also time the bare update with the other Adam")
     parser.add_argument("--compile", action="store_true", help="agent.compile=true (torch.compile)")
     profiles = sorted(p.stem for p in resource_dir("conf").joinpath("profile").glob("*.yaml"))
     parser.add_argument("--profile", choices=profiles, help="a conf/profile on top of each exp (+profile=)")
@@ -218,48 +195,44 @@ def main() -> None:
         f"{'collect':>7} {'adv':>5} {'upd':>5} "
         + " ".join(f"{p:>{PEER_WIDTH[p]}}" for p in PEERS)
         + f" {'ours/peer':>9} {'products':>8}"
-        + ("  other adam" if args.fused else "")
     )
     print(header)
     print("-" * len(header))
-    with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
-        for exp in args.exps:
-            for n in args.num_envs:
-                overrides = [f"+exp={exp}"] + ([f"+profile={args.profile}"] if args.profile else [])
-                overrides += [f"env.num_envs={n}", "logger.backend=none"]
-                overrides += ["agent.compile=true"] if args.compile else []
-                overrides += args.set
-                cfg = compose("train", overrides=overrides)
-                with contextlib.redirect_stdout(sys.stderr):  # its one line would split the table
-                    apply_rollout_floor(cfg)  # as train.py: the profile's minimum rollout
-                rounds = measure(cfg, args.iterations, args.fused)
-                r = {k: sum(rnd[k] for rnd in rounds) for k in rounds[0]}  # totals over the rounds
-                total = r["collect"] + r["advantages"] + r["update"]
-                fps = r["frames"] / total
-                sim, update, act = (r["frames"] / r[k] for k in ("sim", "bare", "act"))
-                limit = r["frames"] / (r["sim"] + r["bare"])  # 1 / (1/sim + 1/update)
-                with_acting = r["frames"] / (r["sim"] + r["bare"] + r["act"])
-                per_round = [
-                    (rnd["sim"] + rnd["bare"]) / (rnd["collect"] + rnd["advantages"] + rnd["update"])
-                    for rnd in rounds
-                ]
-                peers = {p: None if args.no_peers else peer_fps(p, cfg, args.iterations) for p in PEERS}
-                best = max((v for v in peers.values() if v), default=None)
-                cells = " ".join(
-                    f"{v:>{PEER_WIDTH[p]},.0f}" if v else f"{'-':>{PEER_WIDTH[p]}}" for p, v in peers.items()
-                )
-                line = (
-                    f"{exp:<11} {n:>5} {fps:>7,.0f} {sim:>7,.0f} {update:>7,.0f} {limit:>7,.0f} "
-                    f"{fps / limit:>8.2f} {act:>7,.0f} {fps / with_acting:>8.2f} "
-                    f"{f'{min(per_round):.2f}-{max(per_round):.2f}':>9} "
-                    f"{r['collect'] / total:>7.0%} {r['advantages'] / total:>5.0%} "
-                    f"{r['update'] / total:>5.0%} {cells} "
-                    + (f"{fps / best:>9.2f}" if best else f"{'-':>9}")
-                    + f" {agent_precision(cfg):>8}"
-                )
-                if args.fused:
-                    line += f"  {r['frames'] / r['bare_other']:>10,.0f}"
-                print(line, flush=True)
+    for exp in args.exps:
+        for n in args.num_envs:
+            overrides = [f"+exp={exp}"] + ([f"+profile={args.profile}"] if args.profile else [])
+            overrides += [f"env.num_envs={n}", "logger.backend=none"]
+            overrides += ["agent.compile=true"] if args.compile else []
+            overrides += args.set
+            cfg = checked_config(compose_train(overrides))
+            for note in settle_for_machine(cfg):  # as train.py; its lines would split the table
+                print(note, file=sys.stderr)
+            rounds = measure(cfg, args.iterations)
+            r = {k: sum(rnd[k] for rnd in rounds) for k in rounds[0]}  # totals over the rounds
+            total = r["collect"] + r["advantages"] + r["update"]
+            fps = r["frames"] / total
+            sim, update, act = (r["frames"] / r[k] for k in ("sim", "bare", "act"))
+            limit = r["frames"] / (r["sim"] + r["bare"])  # 1 / (1/sim + 1/update)
+            with_acting = r["frames"] / (r["sim"] + r["bare"] + r["act"])
+            per_round = [
+                (rnd["sim"] + rnd["bare"]) / (rnd["collect"] + rnd["advantages"] + rnd["update"])
+                for rnd in rounds
+            ]
+            peers = {p: None if args.no_peers else peer_fps(p, cfg, args.iterations) for p in PEERS}
+            best = max((v for v in peers.values() if v), default=None)
+            cells = " ".join(
+                f"{v:>{PEER_WIDTH[p]},.0f}" if v else f"{'-':>{PEER_WIDTH[p]}}" for p, v in peers.items()
+            )
+            line = (
+                f"{exp:<11} {n:>5} {fps:>7,.0f} {sim:>7,.0f} {update:>7,.0f} {limit:>7,.0f} "
+                f"{fps / limit:>8.2f} {act:>7,.0f} {fps / with_acting:>8.2f} "
+                f"{f'{min(per_round):.2f}-{max(per_round):.2f}':>9} "
+                f"{r['collect'] / total:>7.0%} {r['advantages'] / total:>5.0%} "
+                f"{r['update'] / total:>5.0%} {cells} "
+                + (f"{fps / best:>9.2f}" if best else f"{'-':>9}")
+                + f" {cfg.agent.precision!s:>8}"
+            )
+            print(line, flush=True)
 
 
 if __name__ == "__main__":

@@ -8,15 +8,12 @@ The OpenMP defaults say how torch's OpenMP threads wait between operations, for 
 import it before torch (each only where the variable is unset; OpenMP reads them when torch loads it):
 
 - ``OMP_WAIT_POLICY=PASSIVE``: threads sleep instead of spinning for libgomp's default 300,000
-  spins (about 5.5 ms of a core on this VM after every operation), which left MuJoCo's physics
-  threads without cores: an env step with 2 torch threads took twice as long as with 1 on 2
-  cores, and a PPO minibatch update several times as long on a busy machine.
+  spins after every operation, which would leave MuJoCo's physics threads without cores;
 - ``GOMP_SPINCOUNT=10000``: but to sleep at once costs a wake-up of every thread at every
-  operation, 0.1-0.4 ms on this VM (a 512 x 20 ``exp`` took 131 us against 7 us spinning, a PPO
-  minibatch update 50 ms against 27 ms). 10,000 spins (at most about 0.2 ms) bridge the gaps between the
-  operations of an update or a policy forward and are over long before a physics step ends.
+  operation; 10,000 spins bridge the gaps between the operations of an update or a policy
+  forward and are over long before a physics step ends.
 
-``benchmarks/train_throughput.py`` measures the effect on training (README, "Throughput").
+What each costs and saves: docs/throughput.md (``benchmarks/train_throughput.py`` measures it).
 """
 
 import os

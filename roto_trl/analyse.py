@@ -27,7 +27,6 @@ import roto_trl  # noqa: F401  first, before torch loads: sets how its OpenMP th
 import matplotlib.pyplot as plt
 import numpy as np
 import torch
-from omegaconf import OmegaConf
 
 from roto_trl.analysis.checkpoint_eval import load_run
 from roto_trl.analysis.compare import compare_runs, comparison_csv_rows, comparison_markdown
@@ -118,8 +117,8 @@ def cmd_curves(runs: list[Run], out: Path, args) -> list[Path]:
 def agent_runs(runs: list[Run], args):
     """Each run's agent and its deterministic trajectories (``args.worlds`` episodes)."""
     for run in runs:
-        _, state, _ = load_run(run.path, args.checkpoint)
-        agent, traj = collect(state, args.worlds, eval_seed(run.config), args.max_steps)
+        cfg, state, _ = load_run(run.path, args.checkpoint)
+        agent, traj = collect(state, args.worlds, eval_seed(cfg), args.max_steps)
         yield run, state, agent, traj
 
 
@@ -195,7 +194,7 @@ def cmd_tactile(runs: list[Run], out: Path, args) -> list[Path]:
             )
     for run, state, agent, traj in agent_runs(runs, args):
         ssl = run.config["ssl"]["name"]
-        cfg = OmegaConf.create(state["config"])
+        cfg = state["config"].copy()
         cfg.device = "cpu"
         env = make_eval_env(cfg, 1)
         loss = make_aux_update(cfg, agent, env).loss

@@ -3,19 +3,21 @@
     python roto_trl/evaluate.py run=runs/bounce_ppo/<run>                       # best checkpoint
     python roto_trl/evaluate.py run=runs/bounce_ppo/<run> checkpoint=latest episodes=200 video=true
 
-Keys (``key=value``): ``run`` (required, a run directory of ``train.py``), ``checkpoint``
-(``best``, ``latest`` or a ``.pt`` path of a run of the same task), ``episodes`` (default: the
-run's ``eval.num_envs``; one world per episode), ``seed`` (default: the seed of the run's own
-evaluations, so ``episodes=<eval.num_envs>`` replays them), ``video`` (``true``: an mp4 of the
-first episode in ``<run>/videos/``), ``out`` (default ``<run>/eval.json``), ``policy``
-(``deterministic``, the default: the run's ``agent.deterministic_action``, as its training
-evaluations; ``applied_mean``: the mean of the action the env applies, E[clip(sample)];
-``gaussian_mean``: the Gaussian's mean, skrl's and the authors' deterministic action;
-``stochastic``: samples of its Gaussian, seeded, as the agent acts in training), ``weights``
-(``average``, the default: the moving average of the policy's weights when the run kept one,
-``agent.policy_ema_decay`` > 0, as its training evaluations; ``trained``: the weights PPO trained),
-``noise_scale`` (with ``policy=stochastic``: the policy's standard deviation times this factor,
-default 1; e.g. 0.25 and 0.5 read a checkpoint between its controller and its sampled policy).
+Keys (``key=value``, as Hydra's overrides; ``--help`` prints this):
+  run          a run directory of ``train.py`` (required)
+  checkpoint   best (default), latest, or a ``.pt`` path of a run of the same task
+  episodes     evaluation episodes, one world each (default: the run's ``eval.num_envs``)
+  seed         the episodes' seed (default: the run's own evaluations', so that
+               ``episodes=<eval.num_envs>`` replays them)
+  policy       deterministic (default: the run's ``agent.deterministic_action``, as its training
+               evaluations) | applied_mean (the mean of the action the env applies) |
+               gaussian_mean (the Gaussian's mean: skrl's and the authors') | stochastic (seeded
+               samples of its Gaussian, as the agent acts in training)
+  noise_scale  with policy=stochastic: the policy's std times this factor (default 1)
+  video        true: an mp4 of the first episode in ``<run>/videos/`` (default false)
+  out          where the result goes; default ``<run>/eval.json`` for the best checkpoint's own
+               deterministic policy (what training's report and the analyses read), else a file
+               named after what is evaluated: ``eval-latest.json``, ``eval-best-stochastic.json``
 
 Physical metrics (per task, :meth:`~roto_trl.envs.robot_env.RobotTaskEnv.physical_metrics`):
 Find, seconds to reach each tolerance and the fraction of episodes that reached it; Bounce,
@@ -34,7 +36,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from roto_trl.analysis.checkpoint_eval import evaluate_run
+from roto_trl.analysis.checkpoint_eval import evaluate_run, result_name
 from roto_trl.utils.cli import check_int, parse_key_values
 from roto_trl.utils.paths import writable_file
 
@@ -46,7 +48,6 @@ DEFAULTS = {
     "video": False,
     "out": None,
     "policy": "deterministic",
-    "weights": "average",
     "noise_scale": 1.0,
 }
 
@@ -54,10 +55,9 @@ DEFAULTS = {
 def print_result(result: dict[str, Any]) -> None:
     policy = result.get("policy", "deterministic")
     frames = result["trained_frames"]
-    weights = "averaged weights" if result.get("weights") == "average" else "trained weights"
     if "noise_scale" in result:
         policy = f"{policy} (std x {result['noise_scale']:g})"
-    print(f"{result['exp_name']} ({result['task']}), {frames:,} training frames, {policy} policy, {weights}")
+    print(f"{result['exp_name']} ({result['task']}), {frames:,} training frames, {policy} policy")
     episodes = result["episodes"]
     print(f"  {'return':<22} {result['return_mean']:.3f} ± {result['return_std']:.3f} ({episodes} episodes)")
     for name, value in result["physical"].items():
@@ -66,14 +66,15 @@ def print_result(result: dict[str, Any]) -> None:
 
 def main(argv: list[str] | None = None) -> Path:
     cfg = parse_key_values(
-        "evaluate", sys.argv[1:] if argv is None else argv, DEFAULTS, "run=runs/find_ppo/<run>"
+        "evaluate", sys.argv[1:] if argv is None else argv, DEFAULTS, "run=runs/find_ppo/<run>", __doc__
     )
     check_int("evaluate", cfg, "episodes", 1, optional=True)
     check_int("evaluate", cfg, "seed", 0, optional=True)
     if not isinstance(cfg.video, bool):
         raise SystemExit(f"evaluate: video must be true or false, got {cfg.video!r}")
     try:
-        out = Path(str(cfg.out)) if cfg.out is not None else Path(str(cfg.run)) / "eval.json"
+        default = Path(str(cfg.run)) / result_name(str(cfg.checkpoint), str(cfg.policy), cfg.noise_scale)
+        out = Path(str(cfg.out)) if cfg.out is not None else default
         if cfg.out is not None or out.parent.is_dir():  # before the evaluation, not after it
             writable_file(out, "out")
         out = evaluate_run(
@@ -84,7 +85,6 @@ def main(argv: list[str] | None = None) -> Path:
             bool(cfg.video),
             None if cfg.out is None else Path(str(cfg.out)),
             str(cfg.policy),
-            str(cfg.weights),
             cfg.noise_scale,
         )
     except (ValueError, RuntimeError, FileNotFoundError) as err:  # bad input: one line, no traceback

@@ -1,15 +1,21 @@
 """Record one episode of a task as an mp4, the active contact sensors drawn lit.
 
     python -m roto_trl.record task=bounce                          # random actions
-    python -m roto_trl.record task=find policy=runs/find_ppo/<run>/checkpoints/best.pt
+    python -m roto_trl.record policy=runs/find_ppo/<run>/checkpoints/best.pt   # the run's task
     python -m roto_trl.record task=baoding seed=3 out=baoding.mp4 width=480 height=360
 
-Keys (``key=value``): ``task`` (required), ``policy`` (``random`` or a training checkpoint),
-``seed``, ``out`` (default ``runs/videos/<task>-<policy>-<time>.mp4``), ``camera``, ``width``,
-``height``, ``max_steps`` (default: the whole episode), and ``env.<field>=`` for any
-``make_env`` override (with a checkpoint, on top of the run's own settings). Frames are
-rendered offscreen; on a machine without a display this script uses ``MUJOCO_GL=egl`` unless
-``MUJOCO_GL`` is already set.
+Keys (``key=value``, as Hydra's overrides; ``--help`` prints this):
+  task       find | bounce | baoding; required with random actions, with a checkpoint the run's
+  policy     random (default) or a training checkpoint (``.pt``; its deterministic policy)
+  seed       the episode's reset seed (default 0)
+  out        the mp4 to write (default ``runs/videos/<task>-<policy>-<time>.mp4``)
+  camera     a camera of the scene (default ``roto:side``)
+  width, height   the frames' size in pixels (default 640 x 480; even numbers)
+  max_steps  stop after this many steps (default: the whole episode)
+  env.<field>=    any ``make_env`` override (with a checkpoint, on top of the run's own settings)
+
+Frames are rendered offscreen; on a machine without a display this script uses
+``MUJOCO_GL=egl`` unless ``MUJOCO_GL`` is already set.
 """
 
 from __future__ import annotations
@@ -36,7 +42,7 @@ from roto_trl.utils.paths import writable_file
 from roto_trl.utils.video import write_mp4
 
 DEFAULTS = {
-    "task": "???",
+    "task": None,
     "policy": "random",
     "seed": 0,
     "out": None,
@@ -50,8 +56,10 @@ DEFAULTS = {
 
 def parse_args(argv: list[str]) -> DictConfig:
     """``key=value`` arguments over ``DEFAULTS``, with one-line errors for unknown or missing keys."""
-    cfg = parse_key_values("record", argv, DEFAULTS, "task=bounce policy=random")
-    if cfg.task not in TASKS:
+    cfg = parse_key_values("record", argv, DEFAULTS, "task=bounce policy=random", __doc__)
+    if cfg.task is None and cfg.policy == "random":
+        raise SystemExit(f"record: give task=<{'|'.join(sorted(TASKS))}> for random actions")
+    if cfg.task is not None and cfg.task not in TASKS:
         raise SystemExit(f"record: give task=<{'|'.join(sorted(TASKS))}>, got {cfg.task!r}")
     for key in ("width", "height"):  # H.264 frames have even sides: 2 pixels at least
         check_int("record", cfg, key, 2)
@@ -80,9 +88,11 @@ def make_env_and_policy(cfg: DictConfig):
         n_actions = env.base_env.n_actions
         return env, lambda td: torch.rand(1, n_actions, generator=gen) * 2 - 1
     state = load_checkpoint(Path(str(cfg.policy)))
-    run_cfg = OmegaConf.create(state["config"])
+    run_cfg = state["config"].copy()
+    if cfg.task is None:
+        cfg.task = str(run_cfg.env.task)
     if run_cfg.env.task != cfg.task:
-        raise ValueError(f"the checkpoint was trained on {run_cfg.env.task!r}, not task={cfg.task}")
+        raise ValueError(f"the checkpoint was trained on '{run_cfg.env.task}', not task={cfg.task}")
     run_cfg.device = "cpu"
     run_cfg.env.overrides = OmegaConf.merge(run_cfg.env.overrides, cfg.env)
     env = make_task_env(run_cfg, 1, int(cfg.seed))

@@ -3,9 +3,9 @@
 import sys
 
 import torch
-from hydra import compose, initialize_config_dir
 
-from roto_trl.utils.resources import TRAIN_SCRIPT, resource_dir
+from roto_trl.config import checked_config, compose_train
+from roto_trl.utils.resources import TRAIN_SCRIPT
 
 # the training command line, for tests that run it as a user would
 TRAIN = [sys.executable, str(TRAIN_SCRIPT)]
@@ -32,9 +32,8 @@ OPENMP_DEFAULTS = {"OMP_WAIT_POLICY": "PASSIVE", "GOMP_SPINCOUNT": "10000"}
 
 
 def compose_cfg(overrides):
-    """The training config of ``roto_trl/train.py`` with Hydra ``overrides``."""
-    with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
-        return compose("train", overrides=overrides)
+    """The training config of ``roto_trl/train.py`` with Hydra ``overrides``, typed and checked."""
+    return checked_config(compose_train(overrides))
 
 
 def hold_pose(env, steps: int, td=None):

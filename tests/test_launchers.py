@@ -47,7 +47,7 @@ def test_job_threads(launcher, cores, expected):
 
 def test_slurm_launcher_config_composes():
     with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
-        cfg = compose("train", ["+exp=bounce_ppo", "hydra/launcher=slurm"], return_hydra_config=True)
+        cfg = compose("train", ["exp=bounce_ppo", "hydra/launcher=slurm"], return_hydra_config=True)
     launcher = cfg.hydra.launcher
     assert launcher._target_ == SLURM["_target_"]
     assert (launcher.cpus_per_task, launcher.timeout_min, launcher.max_num_timeout) == (8, 1440, 20)

@@ -8,10 +8,10 @@ from helpers import TINY, compose_cfg
 from omegaconf import OmegaConf
 from tensordict import TensorDict
 
+from roto_trl.config import compose_train, settle_for_machine, typed_config
 from roto_trl.modules.agent import Agent
 from roto_trl.modules.networks import cpu_has_bfloat16, hidden_precision, resolved_precision
-from roto_trl.train import check_config, train
-from roto_trl.trainers.builders import apply_precision
+from roto_trl.train import train
 from roto_trl.trainers.checkpoint import LATEST, load_checkpoint
 
 P, A = 12, 4
@@ -104,13 +104,15 @@ def test_float32_changes_nothing_and_bfloat16_restores_the_setting_after_an_erro
 def test_a_bad_precision_is_a_one_line_error():
     with pytest.raises(ValueError, match=r"agent\.precision must be one of float32, bfloat16, got 'float16'"):
         Agent(("prop",), P, A, precision="float16")
-    with pytest.raises(ValueError, match=r"must be one of float32, bfloat16, auto, got .fp16."):
-        check_config(compose_cfg(["+exp=bounce_ppo", "agent.precision=fp16"]))
+    with pytest.raises(
+        ValueError, match=r"agent\.precision must be one of float32, bfloat16, auto, got fp16"
+    ):
+        compose_cfg(["+exp=bounce_ppo", "agent.precision=fp16"])
     with pytest.raises(ValueError, match=r"got 'auto'"):  # the networks take a resolved value only
         Agent(("prop",), P, A, precision="auto")
     for device in ("cuda", "tpu"):  # a one-line error, also before the device itself is checked
         with pytest.raises(ValueError, match=f"with device={device} use float32"):
-            check_config(compose_cfg(["+exp=bounce_ppo", "agent.precision=bfloat16", f"device={device}"]))
+            compose_cfg(["+exp=bounce_ppo", "agent.precision=bfloat16", f"device={device}"])
 
 
 def test_a_bfloat16_run_trains_evaluates_and_its_checkpoint_reloads(tmp_path):
@@ -123,16 +125,16 @@ def test_a_bfloat16_run_trains_evaluates_and_its_checkpoint_reloads(tmp_path):
     assert (run / "summary.json").is_file()
 
 
-def test_auto_is_bfloat16_only_on_a_cpu_with_bfloat16_products(capsys):
+def test_auto_is_bfloat16_only_on_a_cpu_with_bfloat16_products():
     on_this_cpu = "bfloat16" if cpu_has_bfloat16() else "float32"
     assert resolved_precision("auto", "cpu") == on_this_cpu
     assert resolved_precision("auto", "cuda:0") == "float32"
     assert resolved_precision("auto", "tpu") == "float32"  # check_device names the bad device
     assert [resolved_precision(p, "cuda") for p in ("float32", "bfloat16")] == ["float32", "bfloat16"]
-    cfg = compose_cfg(["+exp=bounce_ppo", "agent.precision=auto", "device=cuda"])
-    apply_precision(cfg)  # as train() does before it saves the run's config
+    cfg = typed_config(compose_train(["+exp=bounce_ppo", "agent.precision=auto", "device=cuda"]))
+    notes = settle_for_machine(cfg)  # as train() does before it saves the run's config
     assert cfg.agent.precision == "float32"
-    assert "auto -> float32 (device=cuda: bfloat16 products are a CPU path)" in capsys.readouterr().out
+    assert "agent.precision: auto -> float32 (device=cuda: bfloat16 products are a CPU path)" in notes
 
 
 def test_an_auto_run_saves_the_precision_it_ran(tmp_path, capsys):

@@ -138,7 +138,8 @@ def test_truncate_csv_keeps_rows_up_to_the_checkpoint(tmp_path):
 
 
 def _checkpoint(path: Path, frames: int, best_at: int | None) -> dict:
-    state = {"agent": {}, "optimizer": {}, "config": {}, "frames": frames}
+    state = {"agent": {}, "optimizer": {}, "config": {}, "frames": frames, "iteration": 1}
+    state |= {"wall_time": 1.0, "eval_time": 0.5}
     state["best_eval_metrics"] = None if best_at is None else {"frames": best_at, "return_mean": 1.0}
     save_checkpoint(path, state)
     return state
@@ -266,8 +267,9 @@ def test_evaluate_and_record_check_their_arguments_first(tmp_path):
     ("override", "message"),
     [
         ("device=tpu", "device must be cpu or cuda"),
-        ("torch_threads=-2", "torch_threads must be a positive integer or null, got -2"),
-        ("checkpoint.interval_minutes=abc", "checkpoint.interval_minutes must be a number >= 0, got 'abc'"),
+        ("torch_threads=-2", "torch_threads must be >= 1, got -2"),
+        ("checkpoint.interval_minutes=abc", "checkpoint.interval_minutes must be a number, got abc"),
+        ("checkpoint.interval_minutes=-1", "checkpoint.interval_minutes must be >= 0, got -1.0"),
         ("+env.overrides.reward_scales.air=abc", r"reward_scales\['air'\] must be a number, got 'abc'"),
         ("+env.overrides.substep=2", r"unknown override\(s\) \['substep'\]"),
     ],

@@ -8,18 +8,17 @@ from roto_trl.train import train
 from roto_trl.trainers.builders import (
     agent_for_env,
     compile_agent,
-    make_advantage,
     make_collector,
     make_eval_env,
     make_ppo_loss,
-    make_rollout_buffer,
     make_train_env,
+    make_update,
 )
 from roto_trl.trainers.checkpoint import load_checkpoint
 from roto_trl.trainers.evaluation import evaluate, selection_key
-from roto_trl.trainers.ppo import minibatch_keys, minibatch_loss, store_rollout
+from roto_trl.trainers.ppo import minibatch_loss
 from roto_trl.trainers.progress import TrainingProgress, estimate_line, format_duration, time_to_budget
-from roto_trl.trainers.schedule import EvalClock, eval_every_frames, evaluation_due, evaluations_left
+from roto_trl.trainers.schedule import EvalClock, evaluation_due, evaluations_left
 
 
 def test_evaluation_falls_on_the_first_iteration_past_each_multiple():
@@ -43,16 +42,12 @@ def test_best_checkpoint_ranks_the_headline_metric_first_then_the_return():
     assert selection_key(None, "reached_3cm") < selection_key(untrained, "reached_3cm")
 
 
-def test_every_frames_is_read_and_the_old_interval_is_refused_with_its_equivalent():
-    cfg = compose_cfg(["+exp=bounce_ppo", "env.num_envs=8", "eval.every_frames=1000"])
-    assert eval_every_frames(cfg) == 1000
-    old = compose_cfg(["+exp=bounce_ppo", "env.num_envs=8", "eval.interval=5"])
-    with pytest.raises(ValueError, match=r"eval.every_frames=640 for eval.interval=5"):  # 5 x 8 x 16
-        eval_every_frames(old)
-    with pytest.raises(ValueError, match=r"eval.every_frames must be a positive integer"):
-        eval_every_frames(compose_cfg(["+exp=bounce_ppo", "eval.every_frames=0"]))
-    saved = compose_cfg(["+exp=bounce_ppo", "env.num_envs=8", "eval.interval=5", "~eval.every_frames"])
-    assert eval_every_frames(saved) == 640  # a config saved before every_frames existed (resume)
+def test_every_frames_must_be_positive_and_the_old_interval_is_refused():
+    assert compose_cfg(["+exp=bounce_ppo", "eval.every_frames=1000"]).eval.every_frames == 1000
+    with pytest.raises(ValueError, match=r"eval\.every_frames must be >= 1, got 0"):
+        compose_cfg(["+exp=bounce_ppo", "eval.every_frames=0"])
+    with pytest.raises(ValueError, match=r"eval\.interval=5: this option was retired"):
+        compose_cfg(["+exp=bounce_ppo", "+eval.interval=5"])
 
 
 def test_eval_clock_sums_evaluations_and_gives_their_share():
@@ -128,11 +123,10 @@ def test_agent_compile_compiles_the_critic_encoder_and_the_ppo_loss_which_match_
     assert all(m._compiled_call_impl is not None for m in (*networks, compiled_loss))
     assert loss_fn._compiled_call_impl is None
     collector = make_collector(cfg, env, agent)
-    buffer = make_rollout_buffer(cfg)
-    keys = minibatch_keys(agent, loss_fn)
-    store_rollout(next(iter(collector)), agent, make_advantage(cfg), buffer, keys=keys)
+    update = make_update(cfg, agent, env)
+    update.store(next(iter(collector)))
     collector.shutdown()
-    minibatch = buffer.sample()
+    minibatch = update.buffer.sample()
     total, losses, _ = minibatch_loss(agent, loss_fn, minibatch.clone())
     compiled_total, compiled_losses, _ = minibatch_loss(compiled, compiled_loss, minibatch.clone())
     assert abs(compiled_total.item() - total.item()) <= 1e-5 * max(1.0, abs(total.item()))

@@ -22,6 +22,7 @@ from optuna.distributions import CategoricalDistribution, FloatDistribution, Int
 from optuna.trial import TrialState
 
 from hydra_plugins.roto_optuna_sweeper._study import render, search_space
+from roto_trl.config import hydra_overrides
 from roto_trl.sweep import main as sweep_main
 from roto_trl.sweeps.storage import load_study, open_storage, redact
 from roto_trl.train import run_objective
@@ -62,7 +63,8 @@ def sweep(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
 )
 def test_search_spaces_are_table_a3(space, exp, expected):
     with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
-        cfg = compose("train", overrides=[f"+exp={exp}", f"hparams_search={space}"], return_hydra_config=True)
+        overrides = hydra_overrides([f"+exp={exp}", f"hparams_search={space}"])
+        cfg = compose("train", overrides=overrides, return_hydra_config=True)
     sweeper = cfg.hydra.sweeper
     assert sweeper._target_ == "hydra_plugins.roto_optuna_sweeper.sweeper.OptunaSweeper"
     assert (sweeper.n_trials, sweeper.n_startup_trials, sweeper.storage) == (20, 5, None)
@@ -164,7 +166,7 @@ def test_tiny_sweep_survives_a_nan_trial_and_writes_the_best_config(tmp_path, ca
     printed = capsys.readouterr().out
     assert f"+exp=find_ppo_ppo_best seed=0,1 'hydra.searchpath=[file://{conf_dir}]'" in printed
     with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
-        cfg = compose("train", overrides=["+exp=find_ppo_ppo_best", f"hydra.searchpath=[file://{conf_dir}]"])
+        cfg = compose("train", overrides=["exp=find_ppo_ppo_best", f"hydra.searchpath=[file://{conf_dir}]"])
     assert cfg.exp_name == "find_ppo_ppo_best" and cfg.env.task == "find" and cfg.env.num_envs == 4096
     assert cfg.agent.lr == study.best_params["agent.lr"] and cfg.env.overrides.reward_scales.dist == 1.0
     with pytest.raises(SystemExit, match="exists; pick another --name or pass --force"):

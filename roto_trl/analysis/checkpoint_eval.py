@@ -10,19 +10,19 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 
 from roto_trl.analysis.report import write_index
-from roto_trl.modules.distributions import DEFAULT_DETERMINISTIC_ACTION, DETERMINISTIC_ACTIONS
+from roto_trl.config import run_config
+from roto_trl.modules.distributions import DETERMINISTIC_ACTIONS
 from roto_trl.trainers.builders import eval_seed, make_eval_env
 from roto_trl.trainers.checkpoint import BEST, LATEST, agent_from_checkpoint, load_checkpoint
 from roto_trl.trainers.evaluation import run_episodes
-from roto_trl.trainers.policy_average import POLICY_AVERAGE_KEY
 from roto_trl.utils.cli import is_number
 from roto_trl.utils.video import write_mp4
 
 NAMED = {"best": BEST, "latest": LATEST}
-# "deterministic": the run's agent.deterministic_action (the default for runs without the key)
+# "deterministic": the run's agent.deterministic_action
 POLICIES = ("deterministic", *DETERMINISTIC_ACTIONS, "stochastic")
 
 
@@ -32,7 +32,7 @@ def resolve_policy(policy: str, state: dict[str, Any]) -> str:
     if policy not in POLICIES:
         raise ValueError(f"policy must be one of {list(POLICIES)}, got {policy!r}")
     if policy == "deterministic":
-        return str(state["config"]["agent"].get("deterministic_action", DEFAULT_DETERMINISTIC_ACTION))
+        return str(state["config"].agent.deterministic_action)
     return policy
 
 
@@ -59,16 +59,16 @@ def load_run(run_dir: Path, checkpoint: str = "best") -> tuple[DictConfig, dict[
         raise FileNotFoundError(
             f"run={run_dir}: no config.yaml there; give a run directory that train.py wrote"
         )
-    cfg = OmegaConf.load(run_dir / "config.yaml")
+    cfg = run_config(run_dir / "config.yaml")
     path = run_dir / "checkpoints" / NAMED[checkpoint] if checkpoint in NAMED else Path(checkpoint)
     state = load_checkpoint(path)
-    trained = state["config"]["env"]
-    if trained["task"] != cfg.env.task:
+    trained = state["config"].env
+    if trained.task != cfg.env.task:
         raise ValueError(
-            f"checkpoint {path} was trained on {trained['task']!r} but run {run_dir} is {cfg.env.task!r}; "
+            f"checkpoint {path} was trained on '{trained.task}' but run {run_dir} is '{cfg.env.task}'; "
             "give a checkpoint of this run's task"
         )
-    inputs = (list(trained["obs_keys"]), bool(trained["last_action"]))
+    inputs = (list(trained.obs_keys), bool(trained.last_action))
     if inputs != (list(cfg.env.obs_keys), bool(cfg.env.last_action)):
         raise ValueError(
             f"checkpoint {path} sees obs_keys={inputs[0]}, last_action={inputs[1]} but run {run_dir} "
@@ -78,6 +78,19 @@ def load_run(run_dir: Path, checkpoint: str = "best") -> tuple[DictConfig, dict[
     return cfg, state, path
 
 
+def result_name(checkpoint: str, policy: str = "deterministic", noise_scale: float = 1.0) -> str:
+    """The file name of an evaluation's result in the run directory: ``eval.json`` for the best
+    checkpoint and the run's own deterministic policy (what training's report shows and the
+    analyses read), else named after what was evaluated, e.g. ``eval-latest.json``,
+    ``eval-best-stochastic.json``, ``eval-latest-stochastic-std0.5.json``, ``eval-<file stem>.json``."""
+    parts = [Path(checkpoint).stem if checkpoint not in NAMED else checkpoint]
+    if policy != "deterministic":
+        parts.append(policy)
+    if noise_scale != 1:
+        parts.append(f"std{noise_scale:g}")
+    return "eval.json" if parts == ["best"] else f"eval-{'-'.join(parts)}.json"
+
+
 def evaluate_checkpoint(
     cfg: DictConfig,
     state: dict[str, Any],
@@ -85,7 +98,6 @@ def evaluate_checkpoint(
     seed: int,
     video: bool = False,
     policy: str = "deterministic",
-    weights: str = "average",
     noise_scale: float = 1.0,
 ) -> tuple[dict[str, Any], list]:
     """Evaluate a checkpoint's policy on ``episodes`` fresh worlds of its task.
@@ -94,8 +106,6 @@ def evaluate_checkpoint(
     the run's ``agent.deterministic_action``), ``applied_mean`` or ``gaussian_mean`` (that
     deterministic action whatever the run used, see ``roto_trl.modules.distributions``), or
     ``stochastic`` (seeded samples of the policy's Gaussian, clipped by the env as in training).
-    ``weights``: ``average`` (the moving average of the policy's weights when the run kept one, else
-    its weights) or ``trained`` (see ``trainers.checkpoint.agent_from_checkpoint``).
     ``noise_scale`` (``stochastic`` only): the policy's standard deviation times this factor, so
     that one checkpoint can be read between its controller (-> 0) and its sampled policy (1);
     the scaled log-std keeps training's clamp (``LOG_STD_RANGE``: std at most e^2).
@@ -105,13 +115,13 @@ def evaluate_checkpoint(
     """
     policy = resolve_policy(policy, state)
     noise_scale = checked_noise_scale(noise_scale, policy)
-    run_cfg = OmegaConf.create(state["config"])
+    run_cfg = state["config"].copy()
     run_cfg.device = "cpu"
     if policy in DETERMINISTIC_ACTIONS:
         run_cfg.agent.deterministic_action = policy
     env = make_eval_env(run_cfg, episodes)
     try:
-        agent = agent_from_checkpoint({**state, "config": OmegaConf.to_container(run_cfg)}, env, weights)
+        agent = agent_from_checkpoint({**state, "config": run_cfg}, env)
         if noise_scale != 1:
             with torch.no_grad():  # this evaluation's copy of the policy only
                 agent.policy_head.log_std.add_(math.log(noise_scale))
@@ -129,7 +139,6 @@ def evaluate_checkpoint(
         "seed": int(seed),
         "policy": policy,
         **({"noise_scale": noise_scale} if noise_scale != 1 else {}),
-        "weights": "average" if weights == "average" and POLICY_AVERAGE_KEY in state else "trained",
         "return_mean": float(result.returns.mean()),
         "return_std": float(result.returns.std(correction=0)),
         "episode_steps_mean": float(result.lengths.double().mean()),
@@ -148,24 +157,24 @@ def evaluate_run(
     video: bool = False,
     out: Path | None = None,
     policy: str = "deterministic",
-    weights: str = "average",
     noise_scale: float = 1.0,
 ) -> Path:
-    """Evaluate one checkpoint of a run, write ``eval.json`` (and the video), refresh ``index.md``."""
+    """Evaluate one checkpoint of a run, write its result (``result_name``: ``eval.json`` for the best
+    checkpoint's default policy) and the video, refresh ``index.md``; returns the result's path."""
     run_dir = Path(run_dir)
     cfg, state, path = load_run(run_dir, checkpoint)
     episodes = int(cfg.eval.num_envs if episodes is None else episodes)
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     seed = eval_seed(cfg) if seed is None else int(seed)
-    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video, policy, weights, noise_scale)
+    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video, policy, noise_scale)
     summary = {"run_dir": str(run_dir.resolve()), "checkpoint": str(path.resolve()), **summary}
     if video:
         video_path = run_dir / "videos" / f"eval-{path.stem}-s{seed}.mp4"
         video_path.parent.mkdir(exist_ok=True)
         write_mp4(video_path, frames)
         summary["video"] = str(video_path.resolve())
-    out = run_dir / "eval.json" if out is None else Path(out)
+    out = run_dir / result_name(checkpoint, policy, noise_scale) if out is None else Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(summary, indent=2))
     write_index(run_dir)

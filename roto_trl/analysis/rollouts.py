@@ -7,7 +7,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import torch
-from omegaconf import OmegaConf
 from tensordict import TensorDict, TensorDictBase
 
 from roto_trl.modules.agent import Agent
@@ -51,7 +50,7 @@ def collect(
     Returns:
         The checkpoint's agent and the trajectories.
     """
-    cfg = OmegaConf.create(state["config"])
+    cfg = state["config"].copy()
     cfg.device = "cpu"
     env = make_eval_env(cfg, worlds)
     z, states, contacts, inputs, live = [], [], [], [], []

@@ -1,1 +1,1 @@
-"""Agent networks (encoder, policy and value heads) as TensorDict modules: see the training issue."""
+"""Agent networks (encoder, policy and value heads) and the policy's distribution, as TensorDict modules."""

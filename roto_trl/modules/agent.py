@@ -17,18 +17,12 @@ from tensordict.nn import TensorDictSequential
 from torch import nn
 from torchrl.modules import ActorValueOperator, ProbabilisticActor
 
-from roto_trl.modules.distributions import (
-    DEFAULT_ACTION_LOG_PROB,
-    DEFAULT_DETERMINISTIC_ACTION,
-    ClippedActionNormal,
-    policy_distribution_kwargs,
-)
+from roto_trl.modules.distributions import ClippedActionNormal
 from roto_trl.modules.networks import ENCODER_SIZES, Encoder, PolicyHead, ValueHead
 from roto_trl.modules.normalization import ValueNormalizer
 from roto_trl.modules.tensor_writes import TensorModule, TensorValueOperator
 
 LATENT_KEY = "z"
-ROLLOUT_LATENT_KEY = "z_rollout"  # a minibatch's acting-time latent, kept while the update writes z
 
 
 def checked_critic_sizes(sizes, shared_encoder: bool) -> tuple[int, ...]:
@@ -72,9 +66,6 @@ class Agent(nn.Module):
         deterministic_action: the evaluation action, ``applied_mean`` (the mean of the clipped
             action the env applies) or ``gaussian_mean`` (skrl's, the authors'); see
             ``roto_trl.modules.distributions``.
-        action_log_prob: the log-probability of PPO's ratio, ``gaussian`` (the unclipped
-            sample's density, the paper's) or ``clipped`` (the applied action's probability,
-            tail masses at the bounds); see ``roto_trl.modules.distributions``.
         value_norm: True: the value head learns returns normalised by running statistics
             (``ValueNormalizer``, the authors' skrl setup); False: raw returns (rsl_rl's).
         critic_encoder_sizes: the layer sizes of the critic's own encoder (``shared_encoder``
@@ -92,10 +83,9 @@ class Agent(nn.Module):
         n_actions: int,
         shared_encoder: bool = True,
         init_log_std: float = 0.0,
-        deterministic_action: str = DEFAULT_DETERMINISTIC_ACTION,
+        deterministic_action: str = "applied_mean",
         value_norm: bool = True,
         critic_encoder_sizes: tuple[int, ...] | None = None,
-        action_log_prob: str = DEFAULT_ACTION_LOG_PROB,
         precision: str = "float32",
     ) -> None:
         super().__init__()
@@ -115,7 +105,7 @@ class Agent(nn.Module):
             TensorModule(self.policy_head, in_keys=[LATENT_KEY], out_keys=["loc", "scale"]),
             in_keys=["loc", "scale"],
             distribution_class=ClippedActionNormal,
-            distribution_kwargs=policy_distribution_kwargs(deterministic_action, action_log_prob),
+            distribution_kwargs={"deterministic_action": str(deterministic_action)},
             return_log_prob=True,
         )
         self.deterministic_action = deterministic_action

@@ -1,4 +1,4 @@
-"""The agent's networks (SPEC "The agent"): a shared encoder, a Gaussian policy head, a value head.
+"""The agent's networks (the paper's Appendix A): a shared encoder, a Gaussian policy head, a value head.
 
 Plain ``nn.Module``s over tensors; ``roto_trl.modules.agent`` wraps them as TorchRL modules.
 """
@@ -65,8 +65,8 @@ def hidden_precision(precision: str) -> contextlib.AbstractContextManager:
     ``bfloat16_products`` for bfloat16, nothing for float32.
 
     Only the products' factors are rounded; activations, LayerNorm, weights and the optimiser
-    stay float32. Autocast, which also keeps the activations and LayerNorm in bfloat16, trained
-    ``bounce_ppo`` as fast but ended lower on all 6 seeds (docs/results_cpu.md, Bounce).
+    stay float32: autocast, which also rounds the activations and LayerNorm, learned less
+    (docs/recipe.md, precision).
     """
     return bfloat16_products() if precision == "bfloat16" else contextlib.nullcontext()
 

@@ -39,7 +39,7 @@ class EncoderLoss(LossModule):
     Args:
         encoder: observation entries -> latent ``[*B, Z]``.
         pos_weight: weight of contacts in the tactile BCE, or ``"auto"`` (inverse contact rate of
-            each minibatch, clamped to [1, 100]).
+            each minibatch, clamped to [1, 100]); None for a loss without a tactile term.
         target_encoder: keep an EMA copy of the encoder (``target_encoder_network_params``),
             updated with TorchRL's ``SoftUpdate(loss, tau=...)``.
     """
@@ -50,10 +50,16 @@ class EncoderLoss(LossModule):
     target_encoder_network_params: TensorDictParams
 
     def __init__(
-        self, encoder: TensorDictModule, *, pos_weight: float | str = 10.0, target_encoder: bool = False
+        self,
+        encoder: TensorDictModule,
+        *,
+        pos_weight: float | str | None = 10.0,
+        target_encoder: bool = False,
     ) -> None:
         super().__init__()
-        if not (pos_weight == "auto" or (isinstance(pos_weight, (int, float)) and pos_weight > 0)):
+        if pos_weight is not None and not (
+            pos_weight == "auto" or (isinstance(pos_weight, int | float) and pos_weight > 0)
+        ):
             raise ValueError(f"pos_weight must be a positive number or 'auto', got {pos_weight!r}")
         self.pos_weight = pos_weight
         self.latent_key = encoder.out_keys[0]

@@ -51,7 +51,7 @@ class ForwardDynamicsLoss(EncoderLoss):
     default_keys = _AcceptedKeys
 
     def __init__(
-        self, encoder: TensorDictModule, action_dim: int, *, latent_dim: int = 256, pos_weight=10.0
+        self, encoder: TensorDictModule, action_dim: int, *, latent_dim: int = 256, pos_weight=None
     ) -> None:
         super().__init__(encoder, pos_weight=pos_weight, target_encoder=True)
         self.forward_model = nn.Sequential(
@@ -74,13 +74,18 @@ class ForwardDynamicsLoss(EncoderLoss):
         target = self.encode_target(tensordict[:, 1:])
         return predicted, target
 
-    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+    def _dynamics(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """The predicted latents ``[B, n-1, Z]`` and L_FD's outputs: ``loss_dynamics`` and the
+        detached ``mse_h<i>`` of each horizon."""
         predicted, target = self._predict(tensordict)
         projected = self.projector(predicted)
         per_horizon = [latent_mse(projected[:, i], target[:, i]) for i in range(predicted.shape[1])]
         out = {"loss_dynamics": torch.stack(per_horizon).sum()}
         out.update({f"mse_h{i + 1}": v.detach() for i, v in enumerate(per_horizon)})
-        return TensorDict(out, batch_size=[])
+        return predicted, out
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDict:
+        return TensorDict(self._dynamics(tensordict)[1], batch_size=[])
 
 
 class TactileForwardDynamicsLoss(ForwardDynamicsLoss):
@@ -127,20 +132,16 @@ class TactileForwardDynamicsLoss(ForwardDynamicsLoss):
         return torch.sigmoid(self.tactile_decoder(predicted))
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
-        predicted, target = self._predict(tensordict)
-        projected = self.projector(predicted)
+        predicted, out = self._dynamics(tensordict)
         tactile = required_entry(tensordict, self.tensor_keys.tactile)[:, 1:].float()
         logits = self.tactile_decoder(predicted)
         weight = self.contact_weight(tactile)
-        mse, bce, out = [], [], {}
+        bce = []
         for i in range(predicted.shape[1]):
-            mse.append(latent_mse(projected[:, i], target[:, i]))
             bce.append(contact_bce(logits[:, i], tactile[:, i], weight))
-            out[f"mse_h{i + 1}"] = mse[-1].detach()
             out.update(
                 {f"{k}_h{i + 1}": v for k, v in contact_confusion(logits[:, i], tactile[:, i]).items()}
             )
-        out["loss_dynamics"] = torch.stack(mse).sum()
         out["loss_tactile"] = torch.stack(bce).sum()
         out["pos_weight"] = float(weight)
         return TensorDict(out, batch_size=[])

@@ -75,13 +75,3 @@ def rollout_latents(forward_model, z0: torch.Tensor, actions: torch.Tensor) -> t
         z = forward_model(torch.cat([z, actions[:, i]], dim=-1))
         out.append(z)
     return torch.stack(out, dim=1)
-
-
-def excess_square(x: torch.Tensor, bound: float) -> torch.Tensor:
-    """Mean over all elements of ``relu(|x| - bound)^2``: 0 inside [-bound, bound], quadratic outside."""
-    return F.relu(x.abs() - bound).square().mean()
-
-
-def feature_drift(features: torch.Tensor, reference: torch.Tensor) -> torch.Tensor:
-    """Mean over all elements of ``(features - reference)^2``; ``reference`` gets no gradient."""
-    return (features - reference.detach()).square().mean()

@@ -10,9 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import optuna
-from omegaconf import OmegaConf
+from omegaconf import DictConfig, OmegaConf
 from optuna.distributions import CategoricalDistribution
 from optuna.trial import FrozenTrial, TrialState
+
+from roto_trl.utils.resources import resource_dir
 
 
 def fmt(value) -> str:
@@ -162,8 +164,21 @@ def _base_exp(arguments: list[str]) -> str | None:
     return None
 
 
-def best_config(study: optuna.Study, name: str) -> str:
-    """An ``exp/`` config: the sweep's experiment with the best trial's values, as YAML text."""
+def base_exp_config(base: str, conf_dir: Path) -> DictConfig:
+    """The experiment ``base`` as its file in ``<conf_dir>/exp/`` or the package's ``conf/exp/``
+    has it, or a ``ValueError`` naming where it was looked for."""
+    for root in (Path(conf_dir), resource_dir("conf")):
+        path = root / "exp" / f"{base}.yaml"
+        if path.is_file():
+            return OmegaConf.load(path)
+    raise ValueError(
+        f"the sweep's experiment {base!r} is in neither {conf_dir}/exp/ nor the package's conf/exp/"
+    )
+
+
+def best_config(study: optuna.Study, name: str, conf_dir: Path) -> str:
+    """An ``exp/`` config: the sweep's experiment (its file's contents, so that the new one stands
+    alone in the ``exp`` group) with the best trial's values, as YAML text."""
     complete = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
     if not complete:
         raise ValueError(f"study {study.study_name!r} has no complete trial yet")
@@ -172,7 +187,8 @@ def best_config(study: optuna.Study, name: str) -> str:
     base = _base_exp(arguments)
     shown = ("exp", "hparams_search", *best.params)  # in the config, or not a setting
     others = [a for a in arguments if a.lstrip("+").partition("=")[0] not in shown]
-    body = OmegaConf.create({"defaults": [base, "_self_"] if base else ["_self_"], "exp_name": name})
+    body = base_exp_config(base, conf_dir) if base else OmegaConf.create()
+    body.exp_name = name
     for key, value in best.params.items():
         OmegaConf.update(body, key, value, force_add=True)
     header = [
@@ -195,7 +211,7 @@ def write_best(study: optuna.Study, name: str, conf_dir: Path, *, force: bool = 
     path = Path(conf_dir) / "exp" / f"{name}.yaml"
     if path.exists() and not force:
         raise FileExistsError(f"{path} exists; pick another --name or pass --force")
-    text = best_config(study, name)
+    text = best_config(study, name, conf_dir)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text)
     return path

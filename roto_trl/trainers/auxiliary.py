@@ -33,7 +33,6 @@ class AuxiliaryUpdate:
         coeff: c_aux, the weight of the auxiliary loss in the encoder's objective.
         seq_len: n, for the dynamics objectives.
         tau: target-encoder update rate.
-        fused: PyTorch's fused Adam (``agent.fused_adam``, as the PPO optimiser).
     """
 
     def __init__(
@@ -45,14 +44,13 @@ class AuxiliaryUpdate:
         coeff: float,
         seq_len: int = 1,
         tau: float = 0.01,
-        fused: bool = False,
     ) -> None:
         self.loss = loss
         self.memory = memory
         self.coeff = float(coeff)
         self.dynamics = isinstance(loss, ForwardDynamicsLoss)
         self.seq_len = int(seq_len) if self.dynamics else 1
-        self.optimizer = torch.optim.Adam(loss.auxiliary_parameters(), lr=float(lr), fused=fused)
+        self.optimizer = torch.optim.Adam(loss.auxiliary_parameters(), lr=float(lr), fused=True)
         self.target_update = SoftUpdate(loss, tau=tau) if self.dynamics else None
 
     def epoch(self, minibatches: int) -> Iterator[TensorDictBase]:

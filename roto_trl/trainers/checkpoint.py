@@ -5,11 +5,9 @@ A checkpoint is one ``torch.save`` dict:
                        its learning rate, which ``agent.lr_schedule=kl_adaptive`` changes)
     aux                with an SSL objective: its loss (auxiliary networks, target encoder)
                        and its optimiser (``AuxiliaryUpdate.state_dict``)
-    frames, iteration  progress counters; best_eval_metrics (the evaluation best.pt holds,
-                       with its ``frames``; None before the first)
-    policy_average     with agent.policy_ema_decay > 0: the moving average of the policy's weights,
-                       by their names in the agent's state dict (``trainers.policy_average``)
-    rng                torch, numpy and the training env's reset generator
+    frames, iteration, best_eval_metrics, wall_time, eval_time
+                       the run's progress (``TrainState.state_dict``)
+    rng                torch, numpy, Python and the training env's reset generator
     config             the run's resolved config (a plain dict)
 """
 
@@ -22,12 +20,21 @@ from typing import Any
 
 import torch
 
+from roto_trl.config import run_config
 from roto_trl.trainers.errors import WriteError
-from roto_trl.trainers.policy_average import POLICY_AVERAGE_KEY, load_policy_weights
 
 LATEST = "latest.pt"
 BEST = "best.pt"
-WEIGHTS = ("average", "trained")  # agent_from_checkpoint's choice of the policy's weights
+REQUIRED = (
+    "agent",
+    "optimizer",
+    "frames",
+    "iteration",
+    "best_eval_metrics",
+    "wall_time",
+    "eval_time",
+    "config",
+)
 
 
 def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
@@ -53,7 +60,8 @@ def save_checkpoint(path: Path, state: dict[str, Any]) -> None:
 
 
 def load_checkpoint(path: Path, map_location: str | torch.device = "cpu") -> dict[str, Any]:
-    """Read a checkpoint, or raise ``FileNotFoundError`` / ``ValueError`` naming the problem."""
+    """Read a checkpoint, its ``config`` as today's typed config (``roto_trl.config.run_config``),
+    or raise ``FileNotFoundError`` / ``ValueError`` naming the problem."""
     path = Path(path)
     if path.is_dir():  # a run directory: its latest checkpoint
         path = path / "checkpoints" / LATEST
@@ -63,32 +71,30 @@ def load_checkpoint(path: Path, map_location: str | torch.device = "cpu") -> dic
         state = torch.load(path, map_location=map_location, weights_only=False)
     except Exception as err:  # torch raises several types for a damaged file
         raise ValueError(f"checkpoint {path} cannot be read ({err}); use another one") from err
-    missing = {"agent", "optimizer", "frames", "config"} - set(state)
+    missing = sorted(set(REQUIRED) - set(state)) if isinstance(state, dict) else list(REQUIRED)
     if missing:
-        raise ValueError(f"{path} is not a RoTO-TRL training checkpoint (missing {sorted(missing)})")
+        raise ValueError(f"{path} is not a RoTO-TRL training checkpoint (missing {missing})")
+    try:
+        state["config"] = run_config(state["config"])
+    except ValueError as err:
+        raise ValueError(f"checkpoint {path}: {err}") from None
     return state
 
 
-def agent_from_checkpoint(state: dict[str, Any], env, weights: str = "average"):
+def agent_from_checkpoint(state: dict[str, Any], env):
     """The trained :class:`~roto_trl.modules.agent.Agent` of a loaded checkpoint, in eval mode.
 
     Build ``env`` from the checkpoint's own settings (``builders.make_task_env(state["config"],
     ...)``); a mismatch in observations or actions is reported, not silently accepted.
-    ``weights`` (:data:`WEIGHTS`): ``average``, the policy's moving average when the run kept one
-    (``agent.policy_ema_decay`` > 0; the controller its evaluations used), else its weights;
-    ``trained``: the weights PPO trained, as a resumed run continues from them.
     """
     from roto_trl.trainers.builders import agent_for_env
 
-    if weights not in WEIGHTS:
-        raise ValueError(f"weights must be one of {list(WEIGHTS)}, got {weights!r}")
     agent = agent_for_env(state["config"], env)
     try:
         agent.load_state_dict(state["agent"])
-        if weights == "average" and POLICY_AVERAGE_KEY in state:
-            load_policy_weights(agent, state[POLICY_AVERAGE_KEY])
     except RuntimeError as err:
-        raise ValueError(f"the checkpoint does not fit this env's observations/actions: {err}") from err
+        first = str(err).splitlines()[1].strip() if len(str(err).splitlines()) > 1 else str(err)
+        raise ValueError(f"the checkpoint does not fit this env's observations/actions ({first})") from None
     return agent.eval()
 
 
@@ -104,3 +110,29 @@ def policy_from_checkpoint(state: dict[str, Any], env):
             return agent.policy(td.select(*agent.obs_keys).clone())["action"]
 
     return act
+
+
+class RunCheckpoints:
+    """A run's ``checkpoints/latest.pt`` and ``best.pt``, kept so that its logs never run ahead of
+    ``latest.pt``: a failed write cuts ``logger``'s files back to the last good checkpoint.
+
+    Args:
+        run_dir: the run's directory.
+        logger: the run's ``MetricLogger``.
+        saved_frames: the frames ``latest.pt`` already holds (a resumed run's), or None.
+    """
+
+    def __init__(self, run_dir: Path, logger, saved_frames: int | None = None) -> None:
+        self.dir = Path(run_dir) / "checkpoints"
+        self.logger = logger
+        self.saved_frames = saved_frames
+
+    def save(self, name: str, state: dict[str, Any]) -> None:
+        """Write ``state`` (a checkpoint dict with its ``frames``) as ``name``."""
+        try:
+            save_checkpoint(self.dir / name, state)
+        except WriteError as err:
+            self.logger.truncate(self.saved_frames or 0)
+            raise WriteError(f"{err}; the logs are cut back to the last checkpoint") from None
+        if name == LATEST:
+            self.saved_frames = int(state["frames"])

@@ -24,3 +24,14 @@ class TrainingInterrupted(KeyboardInterrupt):
     def __init__(self, frames: int, signum: int, run_dir) -> None:
         super().__init__(f"stopped at {frames:,} frames")
         self.frames, self.signum, self.run_dir = frames, signum, run_dir
+
+
+# a single run's exit status and one-line message for each error it reports (``train.py``'s main)
+EXIT_STATUS: dict[type[BaseException], tuple[int, str]] = {
+    NonFiniteError: (3, "stopped: {err}. The last good checkpoint is intact."),
+    WriteError: (1, "{err}"),
+    RunInUse: (2, "{err}"),
+    ValueError: (2, "{err}"),
+    FileNotFoundError: (2, "{err}"),
+    FileExistsError: (2, "{err}"),
+}

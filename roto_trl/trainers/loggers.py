@@ -7,7 +7,7 @@ rows leave that cell empty (read back as NaN), so every metric logged reaches th
 
 On resume every CSV is cut back to the checkpoint's frame count (:func:`truncate_csv_logs`), so
 a resumed run reads as one uninterrupted run; TensorBoard hides its later events (``purge_step``);
-wandb keeps what it has (see the README, "Training").
+wandb keeps what it has (docs/training.md).
 """
 
 from __future__ import annotations

@@ -1,25 +1,23 @@
-"""One PPO iteration on a collected rollout: advantages, the minibatch updates, rollout statistics."""
+"""One PPO iteration on a collected rollout: advantages, the minibatch updates (``PPOUpdate``),
+rollout statistics."""
 
 from __future__ import annotations
 
 import statistics
-from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
 from torchrl.objectives import LossModule
 
-from roto_trl.modules.agent import LATENT_KEY, ROLLOUT_LATENT_KEY, Agent
+from roto_trl.modules.agent import LATENT_KEY, Agent
 from roto_trl.modules.networks import hidden_precision
-from roto_trl.objectives.mean_bound import SATURATED
-from roto_trl.objectives.proximal_feature import ProximalFeatureLoss
 from roto_trl.trainers.errors import NonFiniteError
 from roto_trl.trainers.lr_schedule import kl_k3
 
 
 @torch.no_grad()
-def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage, horizon: int | None = None) -> None:
+def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage) -> None:
     """Write ``advantage`` and normalised ``value_target`` / ``state_value`` into ``batch`` [N, R].
 
     Values of the rollout's observations come from the latent ``z`` the policy wrote while
@@ -27,9 +25,6 @@ def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage, horizon:
     observation's value is the next step's, except after the last step and at episode ends,
     where the episode's final observation is encoded. GAE runs on the return scale; the value
     targets are then normalised with the running statistics, updated with this rollout's returns.
-    ``horizon`` H < R cuts GAE's trace after every H steps as if the rollout ended there (it
-    bootstraps from the next step's value), so an R-step rollout gets the advantages of R / H
-    rollouts of H steps (``agent.gae_horizon``, the rollout-length ablation).
     """
     norm = agent.value_norm
     value = norm.denormalize(agent.normalised_value(batch))  # [N, R, 1]
@@ -41,10 +36,7 @@ def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage, horizon:
     next_value[where] = agent.raw_value(nxt[where])
     batch["state_value"] = value
     nxt["state_value"] = next_value
-    done = nxt["done"]
-    nxt["done"] = with_trace_cuts(done, horizon)  # ``done`` itself without a horizon
     advantage(batch)
-    nxt["done"] = done  # the episode ends as the env gave them, for the rollout's statistics
     target = batch["value_target"]
     if not bool(torch.isfinite(target).all() and torch.isfinite(batch["advantage"]).all()):
         raise NonFiniteError("the return estimate is NaN or inf: check the reward scales and the env")
@@ -53,46 +45,16 @@ def estimate_advantages(batch: TensorDictBase, agent: Agent, advantage, horizon:
     batch["state_value"] = norm.normalize(value)
 
 
-def with_trace_cuts(done: torch.Tensor, horizon: int | None) -> torch.Tensor:
-    """``done`` [N, R, 1], also true after every ``horizon``-th step (a new tensor); ``done``
-    itself for ``None``, so the default costs nothing per iteration."""
-    if horizon is None:
-        return done
-    cuts = done.clone()
-    cuts[:, horizon - 1 :: horizon] = True
-    return cuts
-
-
-def minibatch_keys(agent: Agent, loss_fn: LossModule, terms: Sequence[LossModule] = ()) -> list[NestedKey]:
+def minibatch_keys(agent: Agent, loss_fn: LossModule) -> list[NestedKey]:
     """The rollout entries a PPO minibatch reads (``minibatch_loss``): the observations the
-    encoders take, ``loss_fn``'s action, log-probability, advantage, value target and old value,
-    and the acting-time latent where a ``ProximalFeatureLoss`` compares against it.
+    encoders take, ``loss_fn``'s action, log-probability, advantage, value target and old value.
 
     Why: the rollout holds about three times as much (the next observations, raw contact forces,
     the privileged state, reward terms, the distribution's parameters); keeping only these makes
-    the buffer a third as large (Bounce: 1,456 of 4,302 bytes a step, 95 MB instead of 282 at
-    4096 worlds x 16 steps) and its copy and gathers a little faster (under 1 % of an
-    iteration, README "Throughput").
+    the buffer a third as large and its copy and gathers a little faster.
     """
     k = loss_fn.tensor_keys
-    keys = [*agent.obs_keys, k.action, k.sample_log_prob, k.advantage, k.value_target, k.value]
-    if any(isinstance(term, ProximalFeatureLoss) for term in terms):
-        keys.append(LATENT_KEY)
-    return keys
-
-
-def store_rollout(
-    batch: TensorDictBase, agent: Agent, advantage, buffer, aux=None, horizon=None, keys=None
-) -> None:
-    """Estimate advantages of the rollout ``batch`` [N, R] (GAE's trace cut every ``horizon``
-    steps, if given), put its entries ``keys`` (``minibatch_keys``; None: all of them) in the
-    (emptied) rollout buffer and, with an SSL objective, the whole rollout in the auxiliary
-    memory."""
-    estimate_advantages(batch, agent, advantage, horizon)
-    buffer.empty()
-    buffer.extend((batch if keys is None else batch.select(*keys)).reshape(-1))
-    if aux is not None:
-        aux.memory.add(batch)
+    return [*agent.obs_keys, k.action, k.sample_log_prob, k.advantage, k.value_target, k.value]
 
 
 PPO_TERMS = ("loss_objective", "loss_critic", "loss_entropy")
@@ -100,36 +62,20 @@ MEDIAN_OF = ("kl_approx", "kl_k3", "clip_fraction")  # per-minibatch numbers als
 
 
 def minibatch_loss(
-    agent: Agent,
-    loss_fn,
-    minibatch: TensorDictBase,
-    aux=None,
-    aux_data: TensorDictBase | None = None,
-    terms: Sequence[LossModule] = (),
+    agent: Agent, loss_fn, minibatch: TensorDictBase, aux=None, aux_data: TensorDictBase | None = None
 ) -> tuple[torch.Tensor, TensorDictBase, dict[str, float] | None]:
-    """The paper's Eq. 2 on one minibatch: L = L_PPO + c_aux L_aux (+ the optional policy terms).
+    """The paper's Eq. 2 on one minibatch: L = L_PPO + c_aux L_aux.
 
     Args:
-        minibatch: PPO's minibatch ``[M]`` from the rollout buffer; its acting-time latent ``z``
-            is kept as ``z_rollout`` before the encoder writes the new one.
+        minibatch: PPO's minibatch ``[M]`` from the rollout buffer.
         aux: the ``AuxiliaryUpdate``, or None; ``aux_data`` its minibatch (None: PPO alone).
-        terms: extra losses on the encoded minibatch (``PolicyMeanBoundLoss``,
-            ``ProximalFeatureLoss``; ``builders.make_policy_terms``); their ``loss_*`` entries
-            join the total, their diagnostics PPO's outputs.
 
     Returns:
         The total loss (scalar, one backward trains encoder, heads and auxiliary networks),
         PPO's loss outputs and the auxiliary numbers (None without an auxiliary minibatch).
     """
-    acting = minibatch.get(LATENT_KEY, None)  # the rollout's z (absent in hand-made minibatches)
-    if acting is not None:
-        minibatch.set(ROLLOUT_LATENT_KEY, acting)
     losses = loss_fn(agent.encode(minibatch))
     total = sum(losses[k] for k in PPO_TERMS)
-    for term in terms:  # each reads the z that agent.encode wrote
-        out = term(minibatch)
-        losses.update(out)
-        total = total + sum(v for k, v in out.items() if k.startswith("loss_"))
     aux_stats = None
     if aux is not None and aux_data is not None:
         aux_total, aux_stats = aux.objective(aux_data)
@@ -137,87 +83,152 @@ def minibatch_loss(
     return total, losses, aux_stats
 
 
-def minibatch_step(
-    agent, loss_fn, optimizer, params, max_grad_norm, minibatch, aux=None, aux_data=None, terms=()
-):
-    """One update on ``minibatch`` (and ``aux_data``, an auxiliary minibatch or None): the backward
-    of ``minibatch_loss``, the gradient norm of ``params`` clipped to ``max_grad_norm``, the PPO
-    optimiser's step and, with auxiliary data, the auxiliary one's. Under ``agent.precision=bfloat16``
-    every product of the backward runs in bfloat16 (``hidden_precision``).
+class PPOUpdate:
+    """One iteration's update of the agent on a collected rollout, with everything it needs:
+    the PPO loss, the advantage estimator, the optimiser and its schedules, the rollout buffer
+    and the self-supervised objective.
 
-    Returns ``ClipPPOLoss``'s output, the gradient norm before clipping and the auxiliary numbers
-    (None without auxiliary data); a ``NonFiniteError`` for a non-finite loss or gradient.
+    Args:
+        agent: the agent being trained.
+        loss_fn: TorchRL's ``ClipPPOLoss`` over the agent's heads (``builders.make_ppo_loss``).
+        advantage: GAE (``builders.make_advantage``).
+        optimizer: the PPO optimiser over the agent's parameters.
+        buffer: the rollout buffer, sampled in ``minibatches`` disjoint minibatches per epoch.
+        epochs, minibatches, max_grad_norm: le, mb and the gradient-norm clip.
+        lr_schedule: the KL-adaptive rate (``KLAdaptiveLR``), or None for a fixed rate.
+        std_ceiling: the falling ceiling on the policy's std (``StdCeiling``), or None.
+        aux: the self-supervised objective (``AuxiliaryUpdate``), or None for PPO alone.
     """
-    total, losses, aux_stats = minibatch_loss(agent, loss_fn, minibatch, aux, aux_data, terms)
-    optimizer.zero_grad(set_to_none=True)
-    if aux is not None:
-        aux.zero_grad()
-    with hidden_precision(agent.encoder.precision):  # the backward's products as the forward's
-        total.backward()
-    grad_norm = torch.nn.utils.clip_grad_norm_(params, max_grad_norm)
-    if not bool(torch.isfinite(total) and torch.isfinite(grad_norm)):
-        bad = [k for k, v in losses.items() if k.startswith("loss_") and not torch.isfinite(v).all()]
-        raise NonFiniteError(f"non-finite PPO loss {bad or ['gradient']}; try a smaller agent.lr")
-    optimizer.step()
-    if aux_stats is not None:
-        aux.step()
-    return losses, grad_norm, aux_stats
+
+    def __init__(
+        self,
+        agent: Agent,
+        loss_fn: LossModule,
+        advantage,
+        optimizer: torch.optim.Optimizer,
+        buffer,
+        *,
+        epochs: int,
+        minibatches: int,
+        max_grad_norm: float,
+        lr_schedule=None,
+        std_ceiling=None,
+        aux=None,
+    ) -> None:
+        self.agent, self.loss_fn, self.advantage = agent, loss_fn, advantage
+        self.optimizer, self.buffer = optimizer, buffer
+        self.epochs, self.minibatches, self.max_grad_norm = (
+            int(epochs),
+            int(minibatches),
+            float(max_grad_norm),
+        )
+        self.lr_schedule, self.std_ceiling, self.aux = lr_schedule, std_ceiling, aux
+        self.params = [p for group in optimizer.param_groups for p in group["params"]]
+        self.keys = minibatch_keys(agent, loss_fn)  # what the buffer keeps of each rollout
+
+    def store(self, batch: TensorDictBase) -> None:
+        """Estimate the advantages of the rollout ``batch`` [N, R], put the entries a minibatch
+        reads in the (emptied) rollout buffer and, with an SSL objective, the whole rollout in
+        the auxiliary memory."""
+        estimate_advantages(batch, self.agent, self.advantage)
+        self.buffer.empty()
+        self.buffer.extend(batch.select(*self.keys).reshape(-1))
+        if self.aux is not None:
+            self.aux.memory.add(batch)
+
+    def step(self, minibatch: TensorDictBase, aux_data: TensorDictBase | None = None):
+        """One update on ``minibatch`` (and ``aux_data``, an auxiliary minibatch or None): the
+        backward of ``minibatch_loss``, the gradient norm clipped, the PPO optimiser's step and,
+        with auxiliary data, the auxiliary one's. Under ``agent.precision=bfloat16`` every product
+        of the backward runs in bfloat16 (``hidden_precision``).
+
+        Returns ``ClipPPOLoss``'s output, the gradient norm before clipping and the auxiliary
+        numbers (None without auxiliary data); a ``NonFiniteError`` for a non-finite loss or gradient.
+        """
+        total, losses, aux_stats = minibatch_loss(self.agent, self.loss_fn, minibatch, self.aux, aux_data)
+        self.optimizer.zero_grad(set_to_none=True)
+        if self.aux is not None:
+            self.aux.zero_grad()
+        with hidden_precision(self.agent.encoder.precision):  # the backward's products as the forward's
+            total.backward()
+        grad_norm = torch.nn.utils.clip_grad_norm_(self.params, self.max_grad_norm)
+        if not bool(torch.isfinite(total) and torch.isfinite(grad_norm)):
+            bad = [k for k, v in losses.items() if k.startswith("loss_") and not torch.isfinite(v).all()]
+            raise NonFiniteError(f"non-finite PPO loss {bad or ['gradient']}; try a smaller agent.lr")
+        self.optimizer.step()
+        if aux_stats is not None:
+            self.aux.step()
+        return losses, grad_norm, aux_stats
+
+    def update(self) -> tuple[dict[str, float], list[dict[str, float]]]:
+        """``epochs`` passes of ``minibatches`` disjoint minibatches of the stored rollout.
+
+        Each minibatch: one backward of L_PPO + c_aux L_aux (L_aux on the next of this epoch's
+        auxiliary minibatches, ``aux.epoch``), then the optimisers' steps. With ``lr_schedule``
+        the learning rate follows each epoch's mean ``kl_k3``.
+
+        Returns:
+            The mean diagnostics over minibatches (``ClipPPOLoss``'s, ``grad_norm``, ``kl_k3``:
+            skrl's KL estimate, auxiliary losses as ``aux/<name>``), the medians of ``kl_approx``,
+            ``kl_k3`` and ``clip_fraction`` (``<name>_median``), the learning rate after the
+            update (``lr``), and the numbers of every auxiliary step.
+        """
+        rows: list[dict[str, float]] = []
+        aux_rows: list[dict[str, float]] = []
+        for _ in range(self.epochs):
+            aux_batches = self.aux.epoch(self.minibatches) if self.aux is not None else iter(())
+            epoch_kl = []
+            for _ in range(self.minibatches):
+                aux_data = next(aux_batches, None)  # before PPO's sample: the draws' order is the runs' seed
+                losses, grad_norm, aux_stats = self.step(self.buffer.sample(), aux_data)
+                diag = {k: float(v.detach().mean()) for k, v in losses.items()}
+                diag["grad_norm"] = float(grad_norm)
+                diag["kl_k3"] = kl_k3(diag["kl_approx"], diag["mean_ratio"])
+                if aux_stats is not None:
+                    aux_rows.append(aux_stats)
+                    diag.update({f"aux/{k}": v for k, v in aux_stats.items() if "loss" in k})
+                rows.append(diag)
+                epoch_kl.append(diag["kl_k3"])
+            if self.lr_schedule is not None:
+                self.lr_schedule.step(sum(epoch_kl) / len(epoch_kl))
+        trained = [*self.params, *(self.aux.loss.auxiliary_parameters() if self.aux is not None else [])]
+        if not all(bool(torch.isfinite(p).all()) for p in trained):
+            raise NonFiniteError("a parameter became NaN or inf after the update; try a smaller agent.lr")
+        keys = dict.fromkeys(k for row in rows for k in row)
+        means = {k: sum(r[k] for r in rows if k in r) / sum(k in r for r in rows) for k in keys}
+        for k in MEDIAN_OF:
+            means[f"{k}_median"] = statistics.median(r[k] for r in rows)
+        means["lr"] = float(self.optimizer.param_groups[0]["lr"])
+        return means, aux_rows
+
+    def set_frames(self, frames: int) -> dict[str, float]:
+        """Bring the frame-scheduled parts (the std ceiling) to ``frames`` trained; returns what
+        to log of them."""
+        return {} if self.std_ceiling is None else {"std_ceiling": self.std_ceiling.set_frames(frames)}
+
+    def __call__(self, batch: TensorDictBase, frames: int) -> tuple[dict[str, float], list[dict[str, float]]]:
+        """Store the rollout ``batch``, update on it (``update``) and move the schedules to the
+        ``frames`` trained after it."""
+        self.store(batch)
+        losses, aux_rows = self.update()
+        losses.update(self.set_frames(frames))
+        return losses, aux_rows
+
+    def state_dict(self) -> dict:
+        """What a checkpoint keeps of the update: the agent, the optimiser and the SSL objective."""
+        state = {"agent": self.agent.state_dict(), "optimizer": self.optimizer.state_dict()}
+        if self.aux is not None:
+            state["aux"] = self.aux.state_dict()
+        return state
+
+    def load_state_dict(self, state: dict) -> None:
+        self.agent.load_state_dict(state["agent"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        if self.aux is not None:
+            self.aux.load_state_dict(state["aux"])
 
 
-def ppo_update(
-    cfg, buffer, agent, loss_fn, optimizer, params, aux=None, lr_schedule=None, terms=()
-) -> tuple[dict[str, float], list[dict[str, float]]]:
-    """``epochs`` passes of ``minibatches`` disjoint minibatches.
-
-    Each minibatch: one backward of L_PPO + c_aux L_aux (``minibatch_loss``; L_aux on the next of
-    this epoch's auxiliary minibatches, ``aux.epoch``), then the PPO optimiser steps encoder +
-    heads (gradient norm of ``params`` clipped) and the auxiliary optimiser the auxiliary
-    networks. With ``lr_schedule`` the learning rate follows each epoch's mean ``kl_k3``;
-    ``terms`` (``builders.make_policy_terms``) add their losses and diagnostics to each minibatch's.
-
-    Returns:
-        The mean diagnostics over minibatches (``ClipPPOLoss``'s, ``grad_norm``, ``kl_k3``:
-        skrl's KL estimate, auxiliary losses as ``aux/<name>``), the medians of ``kl_approx``,
-        ``kl_k3`` and ``clip_fraction`` (``<name>_median``), the learning rate after the update
-        (``lr``), and the numbers of every auxiliary step.
-    """
-    rows: list[dict[str, float]] = []
-    aux_rows: list[dict[str, float]] = []
-    for _ in range(cfg.agent.epochs):
-        aux_batches = aux.epoch(cfg.agent.minibatches) if aux is not None else iter(())
-        epoch_kl = []
-        for _ in range(cfg.agent.minibatches):
-            aux_data = next(aux_batches, None)
-            losses, grad_norm, aux_stats = minibatch_step(
-                agent,
-                loss_fn,
-                optimizer,
-                params,
-                cfg.agent.max_grad_norm,
-                buffer.sample(),
-                aux,
-                aux_data,
-                terms,
-            )
-            diag = {k: float(v.detach().mean()) for k, v in losses.items()}
-            diag["grad_norm"] = float(grad_norm)
-            diag["kl_k3"] = kl_k3(diag["kl_approx"], diag["mean_ratio"])
-            if aux_stats is not None:
-                aux_rows.append(aux_stats)
-                diag.update({f"aux/{k}": v for k, v in aux_stats.items() if "loss" in k})
-            rows.append(diag)
-            epoch_kl.append(diag["kl_k3"])
-        if lr_schedule is not None:
-            lr_schedule.step(sum(epoch_kl) / len(epoch_kl))
-    trained = [*params, *(aux.loss.auxiliary_parameters() if aux is not None else [])]
-    if not all(bool(torch.isfinite(p).all()) for p in trained):
-        raise NonFiniteError("a parameter became NaN or inf after the update; try a smaller agent.lr")
-    keys = dict.fromkeys(k for row in rows for k in row)
-    means = {k: sum(r[k] for r in rows if k in r) / sum(k in r for r in rows) for k in keys}
-    for k in MEDIAN_OF:
-        means[f"{k}_median"] = statistics.median(r[k] for r in rows)
-    means["lr"] = float(optimizer.param_groups[0]["lr"])
-    return means, aux_rows
+SATURATED = 0.9  # |tanh mean| above this counts as saturated in ``mean_saturation``
 
 
 def saturation(loc: torch.Tensor) -> float:
@@ -234,9 +245,8 @@ def effective_rank(z: torch.Tensor) -> float:
     (variation spread evenly over all d directions); 0 when the latents do not vary at all (one
     state, or a constant encoder), where the entropy is undefined.
 
-    Why it is logged: on Bounce the policy encoder's rank fell between the best and the final
-    checkpoints in 21 of 26 plain-PPO runs, which fall back, and held in the 3 runs with the FD
-    objective, which do not (README, "Results on a CPU").
+    Why it is logged: a policy encoder whose latents collapse onto few directions has been seen to
+    come with a controller that falls back late in a run (docs/results_cpu.md).
     """
     centred = (z - z.mean(0)).double()  # float64: the Gram matrix squares the singular values
     singular = torch.linalg.eigvalsh(centred.T @ centred).clamp(min=0).sqrt()

@@ -1,5 +1,8 @@
-"""What resuming a run may change, and how its directory is brought back to its checkpoint.
+"""A run's directory: where a new run, a resumed one or a multirun job trains, what resuming may
+change, and how the directory is brought back to its checkpoint.
 
+* :func:`prepare_run`: the run's config, directory and (resuming) checkpoint, with the lock held.
+* :func:`place_multirun_job`: a multirun job's directory and share of the cores.
 * :func:`resume_config`: a resumed run keeps its saved config; only ``RESUMABLE`` keys may be
   given with ``resume=`` (to extend the budget), any other override is a one-line error.
 * :func:`finished_reason`: a run that reached its budget is left as it is.
@@ -10,15 +13,21 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Sequence
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
+from roto_trl.config import check_config, plain, run_config
 from roto_trl.trainers.checkpoint import BEST, LATEST, load_checkpoint
 from roto_trl.trainers.loggers import truncate_csv_logs
+from roto_trl.trainers.run_lock import RunLock
+from roto_trl.trainers.threads import job_threads
+from roto_trl.utils.paths import writable_dir
 
 RESUMABLE = ("total_frames", "time_limit_minutes", "progress")  # what may change on resume
 
@@ -50,7 +59,7 @@ def finished_reason(cfg: DictConfig, state: dict[str, Any]) -> str | None:
     frames = int(state["frames"])
     if frames >= cfg.total_frames:
         return f"it is finished at {frames:,} frames (total_frames={cfg.total_frames})"
-    limit, wall = cfg.time_limit_minutes, float(state.get("wall_time", 0.0))
+    limit, wall = cfg.time_limit_minutes, float(state["wall_time"])
     if limit is not None and wall >= 60 * float(limit):
         return f"it used its time limit (time_limit_minutes={limit}, {wall / 60:.1f} min trained)"
     return None
@@ -77,7 +86,7 @@ def reconcile_best(ckpt_dir: Path, latest: dict[str, Any]) -> None:
     next evaluation writes a new one).
     """
     path = ckpt_dir / BEST
-    best_at = (latest.get("best_eval_metrics") or {}).get("frames")
+    best_at = (latest["best_eval_metrics"] or {"frames": None})["frames"]
     best_frames = int(load_checkpoint(path)["frames"]) if path.is_file() else None
     if best_frames == best_at:
         return
@@ -86,3 +95,80 @@ def reconcile_best(ckpt_dir: Path, latest: dict[str, Any]) -> None:
     else:
         path.unlink(missing_ok=True)
         latest["best_eval_metrics"] = None
+
+
+def save_config(cfg: DictConfig, run_dir: Path) -> None:
+    """Write the run's resolved config as ``<run_dir>/config.yaml``."""
+    OmegaConf.save(OmegaConf.create(plain(cfg)), Path(run_dir) / "config.yaml")
+
+
+def prepare_run(
+    cfg: DictConfig, overrides: Sequence[str] = ()
+) -> tuple[DictConfig, Path, dict | None, RunLock]:
+    """The run's config, directory, (when resuming) checkpoint, and the directory's lock, held.
+
+    A resumed run takes its own saved config (``<run dir>/config.yaml``) with the ``RESUMABLE``
+    keys that the command line ``overrides`` change (:func:`resume_config`). Another process
+    holding the directory is an error before anything in it is touched.
+    """
+    if cfg.resume:
+        run_dir = Path(str(cfg.resume))
+        saved = run_dir / "config.yaml"
+        if not saved.is_file():
+            raise FileNotFoundError(f"resume={run_dir}: no config.yaml there; give a run directory")
+        new_cfg = resume_config(run_config(saved), cfg, overrides)
+        lock = RunLock(writable_dir(run_dir, "resume")).acquire()
+        try:
+            state = load_checkpoint(run_dir / "checkpoints" / LATEST)
+            check_config(new_cfg)
+        except BaseException:
+            lock.release()
+            raise
+        return new_cfg, run_dir, state, lock
+    if cfg.run_dir:
+        run_dir = Path(str(cfg.run_dir))
+    else:
+        run_dir = Path("runs") / cfg.exp_name / f"{datetime.now():%Y%m%d-%H%M%S}-s{cfg.seed}"
+    lock = RunLock(writable_dir(run_dir, "run_dir")).acquire()
+    if (run_dir / "checkpoints" / LATEST).exists():
+        lock.release()
+        raise FileExistsError(f"{run_dir} already holds a run; continue it with resume={run_dir}")
+    with open_dict(cfg):
+        cfg.run_dir, cfg.resume = str(run_dir), None
+    save_config(cfg, run_dir)
+    return cfg, run_dir, None, lock
+
+
+def place_multirun_job(cfg: DictConfig, hydra_cfg: DictConfig) -> bool:
+    """Give a multirun job its run directory and its share of the cores (edits ``cfg``).
+
+    The job's directory: its Hydra job directory (``hydra.sweep.dir`` / ``hydra.sweep.subdir``)
+    without ``run_dir``; with one ``run_dir=X`` for several jobs, ``X/<job number>`` (our Optuna
+    sweeper gives each trial its own ``run_dir``, kept as it is). The same on every start of the
+    job: if it already holds a checkpoint, the job continues it, which is how a job requeued after
+    the scheduler's time limit (submitit's requeue) resumes. Thread shares:
+    ``roto_trl.trainers.threads.job_threads``.
+
+    Returns:
+        True when the job continues its directory's checkpoint (``cfg.resume`` set).
+    """
+    share = job_threads(hydra_cfg.launcher, len(os.sched_getaffinity(0)))
+    with open_dict(cfg):
+        if share is not None:
+            cfg.torch_threads = cfg.torch_threads or share
+            if "num_threads" not in cfg.env.overrides:
+                cfg.env.overrides.num_threads = share
+        if cfg.resume:
+            return False
+        optuna = str(OmegaConf.select(hydra_cfg, "sweeper._target_", default="")).endswith("OptunaSweeper")
+        if not cfg.run_dir:
+            job_dir = Path(str(hydra_cfg.runtime.output_dir))
+        elif optuna:
+            job_dir = Path(str(cfg.run_dir))
+        else:
+            job_dir = Path(str(cfg.run_dir)) / str(hydra_cfg.job.num)
+        if (job_dir / "checkpoints" / LATEST).exists():
+            cfg.resume = str(job_dir)
+            return True
+        cfg.run_dir = str(job_dir)
+        return False

@@ -2,7 +2,7 @@
 
 Scheduling by frames (``eval.every_frames``) rather than by iterations keeps a run's curve points
 at the same frames whatever its worlds and rollout length, so runs of different sizes compare
-point by point, and keeps evaluation's share of the wall time predictable (README, "Training").
+point by point, and keeps evaluation's share of the wall time predictable.
 """
 
 from __future__ import annotations
@@ -15,29 +15,6 @@ from omegaconf import DictConfig
 def frames_per_iteration(cfg: DictConfig) -> int:
     """Frames one iteration collects: ``env.num_envs x agent.rollout_len``."""
     return int(cfg.env.num_envs) * int(cfg.agent.rollout_len)
-
-
-def eval_every_frames(cfg: DictConfig) -> int:
-    """Frames between evaluations, from ``eval.every_frames``.
-
-    The old ``eval.interval`` (iterations) is refused with the equivalent value, so a command
-    written for it fails with the fix instead of silently evaluating at another rate; a config
-    saved by an older run (resumed) has no ``every_frames`` and is converted.
-    """
-    per_iteration = frames_per_iteration(cfg)
-    interval = cfg.eval.get("interval", None)
-    every = cfg.eval.get("every_frames", None)
-    if interval is not None and every is None:
-        return int(interval) * per_iteration
-    if interval is not None:
-        raise ValueError(
-            f"eval.interval (iterations) was replaced by eval.every_frames (frames); use "
-            f"eval.every_frames={int(interval) * per_iteration} for eval.interval={interval} "
-            f"(env.num_envs x agent.rollout_len = {per_iteration} frames per iteration)"
-        )
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise ValueError(f"eval.every_frames must be a positive integer, got {every!r}")
-    return every
 
 
 def evaluation_due(frames_before: int, frames_after: int, every_frames: int) -> bool:

@@ -20,11 +20,12 @@ def job_threads(launcher: Mapping[str, Any], cores: int) -> int | None:
       ``cores``); unset: the defaults, which on SLURM are the cores the job was given.
     * any other launcher (Hydra's basic one runs jobs one after another): the defaults.
     """
-    target = str(launcher.get("_target_", "")).lower()
+    settings = {"_target_": "", "n_jobs": None, "cpus_per_task": None, **launcher}  # each launcher has some
+    target = str(settings["_target_"]).lower()
     if "joblib" in target:
-        n_jobs = int(launcher.get("n_jobs") or 1)
+        n_jobs = int(settings["n_jobs"] or 1)
         concurrent = n_jobs if n_jobs > 0 else max(1, cores + 1 + n_jobs)
         return max(1, cores // concurrent)
-    if "submitit" in target and launcher.get("cpus_per_task"):
-        return max(1, min(int(launcher["cpus_per_task"]), cores))
+    if "submitit" in target and settings["cpus_per_task"]:
+        return max(1, min(int(settings["cpus_per_task"]), cores))
     return None

@@ -9,13 +9,17 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError
 
 
-def parse_key_values(prog: str, argv: list[str], defaults: dict, example: str) -> DictConfig:
-    """``argv`` (``key=value`` each) merged over ``defaults``.
+def parse_key_values(prog: str, argv: list[str], defaults: dict, example: str, usage: str = "") -> DictConfig:
+    """``argv`` (``key=value`` each, as Hydra's overrides) merged over ``defaults``.
 
     A default of ``"???"`` is required; a dict-valued default (e.g. ``env``) takes any sub-key
-    (``env.episode_steps=100``), which its consumer checks. Bad input exits with one line naming
-    the problem and ``example``.
+    (``env.episode_steps=100``), which its consumer checks. ``-h`` or ``--help`` prints ``usage``
+    (the program's docstring, which documents every key) and exits 0. Bad input exits with one
+    line naming the problem and ``example``.
     """
+    if any(a in ("-h", "--help") for a in argv):
+        print(usage.strip() or f"usage: {prog} key=value ...; e.g. {example}")
+        raise SystemExit(0)
     bad = [a for a in argv if "=" not in a]
     if bad:
         raise SystemExit(f"{prog}: arguments are key=value, got {bad}; e.g. {example}")

@@ -1,0 +1,65 @@
+"""The end of a run: ``summary.json``, the plots, the best checkpoint's physical metrics, the report,
+and what the run found, printed above where it all is."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from roto_trl.analysis.checkpoint_eval import evaluate_run
+from roto_trl.analysis.plots import plot_run
+from roto_trl.trainers.progress import format_duration
+from roto_trl.trainers.state import TrainState
+
+
+def headline_line(label: str, result: dict[str, float] | None, headline: str) -> str:
+    """``best evaluation: bounces_per_10s 12.3, return 45.6 (at 1,200,000 frames)``."""
+    if result is None:
+        return f"{label}: none"
+    at = f" (at {int(result['frames']):,} frames)" if "frames" in result else ""
+    return f"{label}: {headline} {result[headline]:.4g}, return {result['return_mean']:.4g}{at}"
+
+
+def finish_run(
+    cfg: DictConfig,
+    run_dir: Path,
+    state: TrainState,
+    final_eval: dict[str, float] | None,
+    wall: float,
+    headline: str,
+) -> Path:
+    """Write ``summary.json``, the plots, ``eval.json`` (the best checkpoint's physical metrics) and
+    ``index.md``; print the best and final evaluations' headline metric, the wall time and where
+    the files are. Returns the path of ``summary.json``."""
+    summary = {
+        "exp_name": cfg.exp_name,
+        "task": str(cfg.env.task),
+        "seed": int(cfg.seed),
+        "frames": state.frames,
+        "iterations": state.iteration,
+        "wall_time_s": round(wall, 1),
+        "frames_per_s": round(state.frames / wall, 1) if wall > 0 else None,
+        "eval_time_s": round(state.eval_clock.seconds, 1),
+        "eval_share": round(state.eval_clock.share(wall), 4),
+        "headline_metric": headline,
+        "best_eval": state.best_eval,
+        "final_eval": final_eval,
+        "run_dir": str(run_dir.resolve()),
+    }
+    path = run_dir / "summary.json"
+    path.write_text(json.dumps(summary, indent=2))
+    plots = plot_run(run_dir)
+    evaluation = evaluate_run(run_dir, "best", episodes=int(cfg.eval.num_envs))
+    share = state.eval_clock.share(wall)
+    print(headline_line("best evaluation", state.best_eval, headline))
+    print(headline_line("final evaluation", final_eval and {"frames": state.frames, **final_eval}, headline))
+    speed = state.frames / max(wall, 1e-9)
+    print(f"wall time: {format_duration(wall)} ({speed:,.0f} frames/s), evaluation {share:.1%} of it")
+    print(f"run directory: {run_dir.resolve()}")
+    print(f"plots: {', '.join(str(p.resolve()) for p in plots)}")
+    print(f"summary: {path.resolve()}")
+    print(f"physical metrics of the best checkpoint: {evaluation.resolve()}")
+    print(f"report: {(run_dir / 'index.md').resolve()}")
+    return path

@@ -1,0 +1,120 @@
+"""The typed config: one schema for every key, profiles on top of experiments in any order, saved
+runs loaded over today's defaults, retired options refused, misspelt keys caught."""
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from helpers import compose_cfg
+from omegaconf import OmegaConf
+
+from roto_trl.analysis.checkpoint_eval import evaluate_run
+from roto_trl.config import (
+    RETIRED_TAG,
+    AgentConfig,
+    compose_train,
+    hydra_overrides,
+    plain,
+    run_config,
+    schema,
+    typed_config,
+)
+from roto_trl.train import train
+from roto_trl.trainers.checkpoint import load_checkpoint, save_checkpoint
+from roto_trl.utils.resources import resource_dir
+
+FIXTURE = Path(__file__).parent / "fixtures" / "config_before_typed_schema.yaml"
+EXPS = sorted(p.stem for p in (resource_dir("conf") / "exp").glob("*.yaml"))
+PROFILES = sorted(p.stem for p in (resource_dir("conf") / "profile").glob("*.yaml"))
+
+
+def test_the_agent_has_at_most_25_keys_and_ppo_yaml_sets_each_once():
+    keys = list(AgentConfig.__dataclass_fields__)
+    assert len(keys) <= 25
+    shipped = OmegaConf.load(resource_dir("conf") / "agent" / "ppo.yaml")
+    assert list(shipped) == keys  # the yaml lists every key, in the schema's order
+    assert plain(typed_config({"agent": shipped}))["agent"] == OmegaConf.to_container(shipped)
+
+
+@pytest.mark.parametrize("exp", EXPS)
+def test_a_profile_composes_on_top_of_the_experiment_in_either_order(exp):
+    for profile in PROFILES:
+        first = plain(typed_config(compose_train([f"+exp={exp}", f"+profile={profile}"])))
+        second = plain(typed_config(compose_train([f"+profile={profile}", f"+exp={exp}"])))
+        assert first == second, profile
+    cpu = compose_train(["+profile=cpu", f"+exp={exp}"])
+    assert cpu.agent.minibatches == 8 and cpu.env.num_envs == 256  # the profile's, not the exp's
+    quick = compose_train(["+profile=quickstart", f"+exp={exp}"])
+    assert (quick.agent.lr, quick.agent.epochs, quick.agent.minibatches) == (3e-4, 4, 4)
+
+
+def test_plus_exp_and_plus_profile_name_the_groups_the_defaults_list_orders():
+    args = ["+profile=cpu", "agent.lr=1", "+exp=find_ppo", "+env.overrides.x=1"]
+    assert hydra_overrides(args) == ["profile=cpu", "agent.lr=1", "exp=find_ppo", "+env.overrides.x=1"]
+
+
+def test_a_misspelt_key_is_refused_even_when_added_with_plus():
+    with pytest.raises(ValueError, match=r"^agent\.lrr is not a config key; did you mean agent\.lr\?"):
+        compose_cfg(["+exp=find_ppo", "+agent.lrr=1e-3"])
+    with pytest.raises(ValueError, match=r"^evaluation is not a config key"):
+        compose_cfg(["+exp=find_ppo", "+evaluation.num_envs=3"])
+
+
+def test_types_choices_and_ranges_are_one_line_errors_naming_the_key():
+    for override, message in (
+        ("agent.epochs=1.5", r"^agent\.epochs must be an integer, got 1\.5$"),
+        ("progress=maybe", r"^progress must be true or false, got maybe$"),
+        ("agent.lr=0", r"^agent\.lr must be > 0, got 0\.0$"),
+        ("agent.gamma=1.5", r"^agent\.gamma must be <= 1, got 1\.5$"),
+        ("ssl.name=byol", r"^ssl\.name must be one of none, tr, fr, fd, tfd, got byol$"),
+        ("seed=-1", r"^seed must be >= 0, got -1$"),
+        ("agent.lr=nan", r"^agent\.lr must be > 0, got nan$"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            compose_cfg(["+exp=find_ppo", override])
+
+
+def test_a_retired_option_is_refused_with_its_tag_and_dropped_where_it_changed_nothing():
+    with pytest.raises(ValueError, match=rf"agent\.policy_ema_decay=0\.9: .* git checkout {RETIRED_TAG}"):
+        typed_config({"agent": {"policy_ema_decay": 0.9}})
+    with pytest.raises(ValueError, match=r"agent\.std_ceiling_frames=\[500000, 1500000\]"):
+        typed_config({"agent": {"std_ceiling": 0.3, "std_ceiling_frames": [500000, 1500000]}})
+    off = {"policy_ema_decay": 0.0, "fused_adam": False, "adam_betas": [0.9, 0.999], "gae_horizon": None}
+    assert plain(typed_config({"agent": off}))["agent"] == plain(schema())["agent"]
+    # the window of a run without a ceiling changed nothing either
+    typed_config({"agent": {"std_ceiling": None, "std_ceiling_frames": [0, 10]}})
+
+
+def test_a_config_saved_before_the_schema_loads_as_today_with_the_same_values():
+    old = OmegaConf.to_container(OmegaConf.load(FIXTURE))
+    new = plain(run_config(FIXTURE))
+    assert "cpu_recipe" in old["env"] and "cpu_recipe" not in new["env"]
+    retired = {"gae_horizon", "action_log_prob", "mean_bound", "mean_bound_coeff", "policy_ema_decay"}
+    assert retired <= set(old["agent"]) and not retired & set(new["agent"])
+    for key, value in new["agent"].items():  # every kept key as it was saved
+        assert value == old["agent"][key] or (value, old["agent"][key]) == (0.0, None), key
+    assert new["ssl"] == {**new["ssl"], **old["ssl"]} and new["env"]["overrides"] == old["env"]["overrides"]
+
+
+def test_a_run_directory_saved_before_the_schema_resumes_and_evaluates(tmp_path):
+    """A run of today's code given the old config.yaml (the fixture: bounce_fd with the CPU recipe,
+    saved with every option the schema retired at its off value) in the run directory and in its
+    checkpoint, as the commit before the schema wrote them: it evaluates and resumes."""
+    run = tmp_path / "run"
+    cfg = run_config(FIXTURE)
+    cfg.run_dir, cfg.total_frames, cfg.progress = str(run), 512, False  # one iteration of 16 x 32
+    train(cfg)
+    old = OmegaConf.load(FIXTURE)
+    old.run_dir, old.total_frames = str(run), 512
+    OmegaConf.save(old, run / "config.yaml")
+    for name in ("latest.pt", "best.pt"):
+        state = torch.load(run / "checkpoints" / name, weights_only=False)
+        state["config"] = OmegaConf.to_container(old)
+        save_checkpoint(run / "checkpoints" / name, state)
+    assert load_checkpoint(run)["config"].agent.minibatches == 8
+    result = json.loads(evaluate_run(run, "latest", episodes=2).read_text())
+    assert result["trained_frames"] == 512
+    train(compose_cfg([f"resume={run}", "total_frames=1024"]), ["total_frames=1024"])
+    assert load_checkpoint(run)["frames"] == 1024
+    assert OmegaConf.load(run / "config.yaml").total_frames == 1024
