@@ -42,6 +42,7 @@ from roto_trl.trainers.interrupts import StopRequests
 from roto_trl.trainers.loggers import MetricLogger, read_csv
 from roto_trl.trainers.ppo import rollout_stats
 from roto_trl.trainers.progress import TrainingProgress
+from roto_trl.trainers.provenance import record_sitting
 from roto_trl.trainers.run_dir import finished_reason, place_multirun_job, prepare_run, rewind, save_config
 from roto_trl.trainers.schedule import evaluation_due, evaluations_left
 from roto_trl.trainers.state import TrainState, rng_state, seed_everything, set_rng_state
@@ -100,6 +101,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
         set_rng_state(resumed["rng"], env)
         print(f"resuming {run_dir} at {state.frames:,} frames (iteration {state.iteration})")
     update.set_frames(state.frames)  # the first rollout's std ceiling
+    record_sitting(run_dir, cfg, state.frames)  # provenance.json: code, packages, machine, command
 
     # 3. the collector, the logs and the checkpoints
     collector = build.make_collector(cfg, env, agent)

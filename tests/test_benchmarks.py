@@ -10,6 +10,7 @@ import pytest
 from roto_trl.modules.networks import resolved_precision
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
+pytestmark = pytest.mark.slow  # each starts a benchmark process that trains or steps for seconds
 
 
 def test_train_throughput_measures_an_ssl_experiment_with_the_cpu_recipe():

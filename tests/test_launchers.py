@@ -113,6 +113,7 @@ def assert_ran_at_once(sweep_dir: Path) -> None:
     assert start[0] < end[1] and start[1] < end[0], "the jobs ran one after another"
 
 
+@pytest.mark.slow  # end to end: Hydra's launcher or sweeper starts training processes
 def test_two_jobs_at_once_through_joblib(tmp_path):
     done = multirun(tmp_path, "hydra/launcher=joblib", "hydra.launcher.n_jobs=2")
     assert done.returncode == 0, done.stderr[-3000:]
@@ -120,6 +121,7 @@ def test_two_jobs_at_once_through_joblib(tmp_path):
     assert_ran_at_once(tmp_path)
 
 
+@pytest.mark.slow  # end to end: Hydra's launcher or sweeper starts training processes
 def test_two_jobs_through_submitit_local(tmp_path):
     done = multirun(tmp_path, "hydra/launcher=submitit_local", "hydra.launcher.cpus_per_task=1")
     assert done.returncode == 0, done.stderr[-3000:]

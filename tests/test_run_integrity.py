@@ -163,7 +163,7 @@ def test_best_pt_is_made_to_agree_with_the_checkpoint(tmp_path):
 # ---------------------------------------------------------------------------- 3. what resume may change
 
 
-def test_resume_leaves_a_finished_run_alone_and_takes_only_a_larger_budget(tmp_path):
+def test_resume_leaves_a_finished_run_alone_and_takes_only_a_larger_budget(tmp_path, capsys):
     run = tmp_path / "run"
     train(compose_cfg(tiny(run)))
 
@@ -171,12 +171,11 @@ def test_resume_leaves_a_finished_run_alone_and_takes_only_a_larger_budget(tmp_p
         return {p: p.stat().st_mtime_ns for p in run.rglob("*") if p.is_file() and p.name != ".lock.owner"}
 
     before = stamps()
-    done = subprocess.run([*TRAIN, f"resume={run}"], capture_output=True, text=True, timeout=120)
-    assert done.returncode == 0 and "nothing to do, it is finished at 256 frames" in done.stdout
+    train(compose_cfg([f"resume={run}"]), [f"resume={run}"])
+    assert "nothing to do, it is finished at 256 frames" in capsys.readouterr().out
     extra = ["total_frames=512", "agent.lr=5e-4"]
-    bad = subprocess.run([*TRAIN, f"resume={run}", *extra], capture_output=True, text=True, timeout=120)
-    assert bad.returncode == 2 and "Traceback" not in bad.stderr
-    assert f"only {', '.join(RESUMABLE)} may change on resume, not agent.lr" in bad.stderr
+    with pytest.raises(ValueError, match=f"only {', '.join(RESUMABLE)} may change on resume, not agent.lr"):
+        train(compose_cfg([f"resume={run}", *extra]), [f"resume={run}", *extra])
     assert stamps() == before
     summary = json.loads(
         train(compose_cfg([f"resume={run}", "total_frames=384"]), ["total_frames=384"]).read_text()
@@ -299,6 +298,7 @@ def test_analyse_mi_needs_k_of_at_least_one(tmp_path, k, capsys):
 # ---------------------------------------------------------------------------- multirun
 
 
+@pytest.mark.slow  # end to end: Hydra's launcher or sweeper starts training processes
 def test_a_multirun_with_one_run_dir_gives_each_job_its_own(tmp_path):
     run = tmp_path / "runs"
     done = subprocess.run(
@@ -309,3 +309,19 @@ def test_a_multirun_with_one_run_dir_gives_each_job_its_own(tmp_path):
     )
     assert done.returncode == 0, done.stderr[-2000:]
     assert [load_checkpoint(run / job)["config"]["seed"] for job in ("0", "1")] == [0, 1]
+
+
+def test_a_run_records_how_it_was_made_at_every_sitting(tmp_path):
+    from importlib.metadata import version
+
+    from roto_trl.trainers.provenance import read_provenance
+
+    run = tmp_path / "run"
+    train(compose_cfg(tiny(run)))
+    train(compose_cfg([f"resume={run}", "total_frames=384"]), ["total_frames=384"])
+    first, resumed = read_provenance(run)
+    assert (first["at_frames"], resumed["at_frames"]) == (0, 256)
+    assert len(first["commit"]) == 40 and isinstance(first["dirty"], bool)
+    assert first["versions"]["torch"] == version("torch") and first["versions"]["mujoco"] == version("mujoco")
+    assert first["precision"] == "float32" and first["torch_threads"] == 1 and first["cpu"]
+    assert first["command"] == [Path(sys.orig_argv[0]).name, *sys.orig_argv[1:]]

@@ -124,6 +124,7 @@ def test_storage_urls(tmp_path):
         load_study(tmp_path)
 
 
+@pytest.mark.slow  # end to end: Hydra's launcher or sweeper starts training processes
 def test_tiny_sweep_survives_a_nan_trial_and_writes_the_best_config(tmp_path, capsys):
     sweep_dir = tmp_path / "sweep"
     # the reward scale is searched too: its inf choice makes a trial's returns inf (seed 1: trials 1, 3)
@@ -175,6 +176,7 @@ def test_tiny_sweep_survives_a_nan_trial_and_writes_the_best_config(tmp_path, ca
     assert capsys.readouterr().out.rstrip().endswith(f"'hydra.searchpath=[file://{conf_dir}]' +profile=smoke")
 
 
+@pytest.mark.slow  # end to end: Hydra's launcher or sweeper starts training processes
 def test_failing_trials_stop_the_sweep_after_max_failures(tmp_path):
     failed = sweep(
         f"hydra.sweep.dir={tmp_path}",
@@ -186,6 +188,7 @@ def test_failing_trials_stop_the_sweep_after_max_failures(tmp_path):
     assert [t.state for t in load_study(tmp_path).get_trials()] == [TrialState.FAIL] * 2
 
 
+@pytest.mark.slow  # end to end: Hydra's launcher or sweeper starts training processes
 def test_killed_sweep_resumes_with_the_same_command(tmp_path):
     args = [*TINY_SWEEP, f"hydra.sweep.dir={tmp_path}", "hydra.sweeper.n_trials=3"]
     proc = subprocess.Popen([*TRAIN, *args], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -287,6 +290,7 @@ def test_two_workers_share_a_postgresql_study(tmp_path, postgresql_url):
     assert len({t.user_attrs["worker"] for t in trials}) == 2  # both workers ran trials
 
 
+@pytest.mark.slow  # end to end: Hydra's launcher or sweeper starts training processes
 def test_bad_sweep_setups_get_one_line(tmp_path):
     (tmp_path / "study.db").write_text("not a database")
     corrupt = sweep(f"hydra.sweep.dir={tmp_path}")
@@ -302,6 +306,7 @@ def test_bad_sweep_setups_get_one_line(tmp_path):
         sweep_main(["summary", str(tmp_path)])
 
 
+@pytest.mark.slow  # end to end: Hydra's launcher or sweeper starts training processes
 def test_sweep_runs_two_trials_at_once_through_joblib(tmp_path):
     done = sweep(
         f"hydra.sweep.dir={tmp_path}",

@@ -1,11 +1,14 @@
 """Task logic: the bounce and rotation counters (by hand, then in the simulator), falls, rewards."""
 
+import math
+
+import numpy as np
 import pytest
 import torch
 from helpers import hold_pose
 
 from roto_trl import make_env
-from roto_trl.envs.baoding import TARGETS, complete_rotations, swap_targets
+from roto_trl.envs.baoding import TARGETS, complete_rotations, pair_angle, swap_targets, unwrapped_step
 from roto_trl.envs.batched_mujoco import PhysicsReading
 from roto_trl.envs.bounce import BALL_REST, count_bounces
 from roto_trl.envs.robot_env import sensor_force
@@ -49,15 +52,51 @@ def test_contact_after_four_free_steps_is_not_a_bounce():
 
 
 def test_two_swaps_make_one_rotation():
-    near, far = torch.tensor([0.005]), torch.tensor([0.05])
-    phase = torch.zeros(1, dtype=torch.long)
-    swapped, phase = swap_targets(near, far, phase)  # one ball there, the other not: no swap
-    assert not bool(swapped) and int(complete_rotations(phase)) == 0
-    swapped, phase = swap_targets(near, near, phase)
-    assert bool(swapped) and int(phase) == 1 and int(complete_rotations(phase)) == 0
-    swapped, phase = swap_targets(near, near, phase)
-    assert int(phase) == 2 and int(complete_rotations(phase)) == 1
+    near = torch.tensor([0.005])
+    for rule in ("latched", "simultaneous"):
+        phase, marks = torch.zeros(1, dtype=torch.long), torch.zeros(1, 2, dtype=torch.bool)
+        swapped, phase, marks = swap_targets(near, near, phase, marks, rule)
+        assert bool(swapped) and int(phase) == 1 and int(complete_rotations(phase)) == 0
+        swapped, phase, marks = swap_targets(near, near, phase, marks, rule)
+        assert int(phase) == 2 and int(complete_rotations(phase)) == 1
     assert complete_rotations(torch.tensor([0, 1, 2, 3, 4, 5])).tolist() == [0, 0, 1, 1, 2, 2]
+
+
+def test_a_visit_one_ball_after_the_other_swaps_under_the_latched_rule_only():
+    """Ball A reaches its target and leaves, then ball B reaches its own: the authors' latched rule
+    pays the swap at B's arrival (and clears both marks), the paper's simultaneous rule never."""
+    near, far = torch.tensor([0.005]), torch.tensor([0.05])
+    visits = [(near, far), (far, far), (far, near)]  # A there; neither; B there
+    for rule, paid in (("latched", [False, False, True]), ("simultaneous", [False, False, False])):
+        phase, marks = torch.zeros(1, dtype=torch.long), torch.zeros(1, 2, dtype=torch.bool)
+        swaps = []
+        for dist_a, dist_b in visits:
+            swapped, phase, marks = swap_targets(dist_a, dist_b, phase, marks, rule)
+            swaps.append(bool(swapped))
+        assert swaps == paid, rule
+        assert not bool(marks.any())  # latched: cleared at the swap; simultaneous: never set
+    marks = torch.zeros(1, 2, dtype=torch.bool)
+    _, _, marks = swap_targets(near, far, torch.zeros(1, dtype=torch.long), marks)
+    assert marks.tolist() == [[True, False]]  # A's mark is kept until B arrives
+
+
+def test_turns_by_hand_once_around_either_way():
+    """Ball B moved once around ball A in 12 steps about the normal z: +1 turn counter-clockwise
+    (the angle unwrapped across +-pi), -1 the other way; an unset previous angle adds nothing."""
+    normal = torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)
+    centre = torch.zeros(1, 3, dtype=torch.float64)
+    for sign in (1.0, -1.0):
+        previous, turned = (
+            torch.full((1,), float("nan"), dtype=torch.float64),
+            torch.zeros(1, dtype=torch.float64),
+        )
+        for k in range(13):
+            phi = sign * 2 * math.pi * k / 12
+            pos_b = torch.tensor([[math.cos(phi), math.sin(phi), 0.3]], dtype=torch.float64)
+            angle = pair_angle(centre, pos_b, normal)
+            turned += unwrapped_step(angle, previous)
+            previous = angle
+        assert float(turned) / (2 * math.pi) == pytest.approx(sign)
 
 
 def place(env, **bodies):
@@ -112,13 +151,52 @@ def test_balls_on_their_targets_swap_and_two_swaps_count_one_rotation():
     td = hold_pose(env, 1, td)
     assert td["reward_terms", "rotation"].item() == pytest.approx(10.0)
     assert td["rotations"].item() == 0.0
-    td = place(env, ball_a=a, ball_b=b)  # a new episode: counters restart
-    assert td["rotations"].item() == 0.0
     base = env.base_env
+    base._marks[:] = True  # left over from the episode: a new one must not start with them
+    td = place(env, ball_a=a, ball_b=b)  # a new episode: counters, marks and targets restart
+    assert td["rotations"].item() == 0.0 and not bool(base._marks.any()) and int(base._swaps) == 0
     base._swaps[:] = 1  # one swap done: the targets point back to the start
     td = hold_pose(env, 1, td)
     assert td["rotations"].item() == 1.0
     env.close()
+
+
+@pytest.mark.parametrize("rule", ["latched", "simultaneous"])
+def test_placed_balls_carried_once_around_read_one_turn_and_two_swaps(rule):
+    """The env's own accounting on placed states: the pair carried once around the midpoint of the
+    targets about the palm's normal in 24 steps, each ball passing the other's target on the way,
+    reads +1 turn and two swaps (-1 turn the other way); then a new episode reads 0 again."""
+    env = make_env("baoding", 1, hand_reset_noise=0.0, swap_rule=rule)
+    base = env.base_env
+    env.reset()
+    m = base.mj_model
+    a, b = (torch.tensor(t, dtype=torch.float64) for t in TARGETS)
+    centre, half = (a + b) / 2, (b - a) / 2
+    normal = torch.tensor([0.0, -0.155, 0.988], dtype=torch.float64)
+    normal = normal / normal.norm()  # the palm's, near enough; the sensor reads it exactly
+    sensors = torch.zeros(1, 1, m.nsensordata, dtype=torch.float64)
+    sensors[0, 0, base._palm_y] = -normal
+    for sign in (1.0, -1.0):
+        base._on_reset_mask(np.array([0]))
+        swaps = 0
+        for k in range(25):
+            phi = sign * 2 * math.pi * k / 24
+            turn = rotation_about(normal, phi)
+            qpos = torch.zeros(1, m.nq, dtype=torch.float64)
+            for name, pos in (("ball_a", centre - turn @ half), ("ball_b", centre + turn @ half)):
+                adr = int(m.jnt_qposadr[m.joint(name).id])
+                qpos[0, adr : adr + 3] = pos
+            reading = PhysicsReading(qpos=qpos, qvel=torch.zeros(1, m.nv), sensordata=sensors, mocap_pos=None)
+            swaps += int(base._compute_reward(reading)["rotation"].item())
+        assert float(base._turned[0]) / (2 * math.pi) == pytest.approx(sign)
+        assert swaps == 2 and int(complete_rotations(base._swaps)) == 1
+    env.close()
+
+
+def rotation_about(axis: torch.Tensor, angle: float) -> torch.Tensor:
+    """The 3 x 3 rotation by ``angle`` about the unit ``axis`` (Rodrigues)."""
+    k = torch.tensor([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return torch.eye(3, dtype=torch.float64) + math.sin(angle) * k + (1 - math.cos(angle)) * k @ k
 
 
 def test_baoding_terminates_when_the_balls_separate():
