@@ -30,6 +30,7 @@ import torch
 
 from roto_trl.analysis.checkpoint_eval import load_run
 from roto_trl.analysis.compare import compare_runs, comparison_csv_rows, comparison_markdown
+from roto_trl.analysis.metrics import describe
 from roto_trl.analysis.mutual_information import latent_state_information, pca
 from roto_trl.analysis.plots import save_figure
 from roto_trl.analysis.rollouts import collect
@@ -37,6 +38,7 @@ from roto_trl.analysis.runs import (
     Run,
     by_experiment,
     find_runs,
+    headline_of,
     learning_curve,
     one_task,
     physical_metrics,
@@ -68,23 +70,26 @@ def write_csv(path: Path, header: list[str], rows: list[list]) -> Path:
 
 
 def cmd_curves(runs: list[Run], out: Path, args) -> list[Path]:
-    """Evaluation return vs frames (mean ± 1 std across seeds) and the physical-metric bars."""
+    """An evaluation metric vs frames (mean ± 1 std across seeds; ``--metric``, by default the
+    task's headline metric) and the physical-metric bars."""
     one_task(runs, "curves")
     groups = by_experiment(runs)
+    metric = args.metric or headline_of(runs[0].path) or "return_mean"
     fig, ax = plt.subplots(figsize=(6.5, 4))
     rows = []
     for exp, members in groups.items():
-        curve = learning_curve(members, args.x)
+        curve = learning_curve(members, args.x, metric)
         ax.plot(curve.x, curve.mean, label=f"{exp} ({curve.seeds} seed{'' if curve.seeds == 1 else 's'})")
         ax.fill_between(curve.x, curve.mean - curve.std, curve.mean + curve.std, alpha=0.25)
         xs = curve.x.astype(int) if args.x == "frames" else curve.x
         rows += [[exp, x, m, s, curve.seeds] for x, m, s in zip(xs, curve.mean, curve.std, strict=True)]
     xlabel = "env steps (frames)" if args.x == "frames" else "training wall time (minutes)"
-    ax.set(xlabel=xlabel, ylabel="evaluation return", title="evaluation return (mean ± 1 std)")
+    what, unit = describe(metric)
+    ax.set(xlabel=xlabel, ylabel=unit or what, title=f"{what} (mean ± 1 std over seeds)")
     ax.legend()
     name = "curves" if args.x == "frames" else "curves-minutes"
     written = [save_figure(fig, out / f"{name}.png")]
-    header = ["exp_name", args.x, "return_mean", "return_std", "seeds"]
+    header = ["exp_name", args.x, f"{metric}_mean", f"{metric}_std", "seeds"]
     written.append(write_csv(out / f"{name}.csv", header, rows))
 
     if args.no_physical:
@@ -376,6 +381,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                 "--no-physical", action="store_true", help="skip the physical-metric bars (no eval.json)"
             )
             p.add_argument("--x", choices=["frames", "minutes"], default="frames", help="curves against")
+            p.add_argument(
+                "--metric",
+                help="the eval.csv column to plot (default: the task's headline metric, e.g. reached_3cm)",
+            )
         if name == "mi":
             p.add_argument(
                 "--samples", type=positive_int, default=5000, help="(z, s) pairs, drawn from all steps"

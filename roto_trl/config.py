@@ -34,6 +34,7 @@ from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError, OmegaConfBaseException, ValidationError
 
 from roto_trl.modules.networks import cpu_has_bfloat16, on_cpu, resolved_precision
+from roto_trl.utils.cli import frame_count
 
 RETIRED_TAG = "ablations-2026-12"  # the last commit that has the retired options (docs/ablations.md)
 
@@ -221,8 +222,10 @@ RETIRED: dict[str, Callable[[Any, Mapping], bool]] = {
         value == [0.6, 0.9] or OmegaConf.select(cfg, "agent.std_ceiling") is None
     ),
     "env.cpu_recipe": _always,  # the per-task part of +profile=cpu; its values are under agent.* and eval.*
-    "eval.interval": _equals(None),  # replaced by eval.every_frames
+    "eval.interval": _equals(None),
 }
+# retired keys that another key replaced: their one-line error names it instead of an ablation
+REPLACED = {"eval.interval": "eval.every_frames (frames between evaluations, not iterations)"}
 
 
 def drop_retired(cfg: DictConfig) -> DictConfig:
@@ -234,6 +237,8 @@ def drop_retired(cfg: DictConfig) -> DictConfig:
         if not isinstance(node, DictConfig) or name not in node:
             continue
         value = OmegaConf.to_container(node, resolve=True)[name]
+        if not harmless(value, cfg) and key in REPLACED:
+            raise ValueError(f"{key} was replaced by {REPLACED[key]}; give that instead")
         if not harmless(value, cfg):
             raise ValueError(
                 f"{key}={value!r}: this option was retired after its ablation (docs/ablations.md); "
@@ -309,6 +314,9 @@ def check_ranges(cfg: DictConfig, node_type: type = TrainConfig, prefix: str = "
                 raise ValueError(f"{prefix}{f.name} must be {sign} {bound:g}, got {value!r}")
 
 
+FRAME_KEYS = ("total_frames", "env.budget_frames", "eval.every_frames")  # counts of frames
+
+
 def typed_config(cfg: DictConfig | Mapping) -> DictConfig:
     """``cfg`` (composed by Hydra, or saved) resolved, its retired keys dropped, merged over the
     schema's defaults and range-checked: a typed config in struct mode, or a one-line ``ValueError``."""
@@ -318,6 +326,10 @@ def typed_config(cfg: DictConfig | Mapping) -> DictConfig:
     except OmegaConfBaseException as err:
         raise ValueError(_one_line(err)) from None
     plain = drop_retired(plain)
+    for key in FRAME_KEYS:  # 2M, 2_000_000 and 2e6 alike
+        value = OmegaConf.select(plain, key)
+        if value is not None:
+            OmegaConf.update(plain, key, frame_count(value, key))
     try:
         typed = OmegaConf.merge(schema(), plain)
     except (ValidationError, ConfigKeyError) as err:
@@ -468,3 +480,25 @@ def compose_train(overrides: Sequence[str] = ()) -> DictConfig:
 
     with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
         return compose("train", overrides=hydra_overrides(overrides))
+
+
+# overrides that change what an experiment trains: its task, observations or objective
+IDENTITY_KEYS = ("env", "env.task", "env.obs_keys", "env.last_action", "ssl", "ssl.name")
+
+
+def check_run_name(overrides: Sequence[str]) -> None:
+    """A one-line ``ValueError`` when command-line ``overrides`` change what the run trains (its
+    task, observation set or self-supervised objective, ``IDENTITY_KEYS``) but keep the
+    experiment's name: runs are stored under, and the analysis tools group them by,
+    ``exp_name``, so ``+exp=bounce_ppo ssl=fd`` must say ``exp_name=<its own name>``. Without
+    ``+exp=`` the task alone may change: the default name follows it (``<task>_ppo``)."""
+    keys = [arg.partition("=")[0].lstrip("+~") for arg in hydra_overrides(overrides)]
+    changed = [k for k in keys if k in IDENTITY_KEYS]
+    if not changed or "exp_name" in keys:
+        return
+    if "exp" not in keys and set(changed) <= {"env", "env.task"}:
+        return
+    raise ValueError(
+        f"{', '.join(changed)} changes what the run trains; name it with exp_name=<name> "
+        "(runs are stored and grouped by exp_name)"
+    )

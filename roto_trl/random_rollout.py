@@ -1,10 +1,11 @@
-"""Random-policy rollout of each task: control steps/s and episode metrics.
+"""Random-policy rollout of each task: control steps/s and episode metrics, a quick check of the
+simulator.
 
-The quickstart's main job until training lands. Uniform random actions in [-1, 1] through the
-full observation pipeline (``make_env``), with episodes ending and partially resetting as in
-training. Writes ``summary.json`` under ``--out`` and prints where it is.
+Uniform random actions in [-1, 1] through the full observation pipeline (``make_env``), with
+episodes ending and partially resetting as in training. Writes ``summary.json`` under ``--out``
+and prints where it is.
 
-    python -m roto_trl.random_rollout                     # both Shadow tasks, 256 envs, 600 steps
+    python -m roto_trl.random_rollout                     # every task, 256 envs, 600 steps
     python -m roto_trl.random_rollout --tasks bounce --num-envs 1024 --steps 300
 """
 

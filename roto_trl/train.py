@@ -30,16 +30,17 @@ import hydra
 import torch
 from hydra.core.hydra_config import HydraConfig
 from hydra.types import RunMode
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
+from roto_trl.analysis.runs import run_objective
 from roto_trl.analysis.summary import finish_run
-from roto_trl.config import checked_config, hydra_overrides, plain, settle_for_machine
+from roto_trl.config import check_run_name, checked_config, hydra_overrides, plain, settle_for_machine
 from roto_trl.trainers import builders as build
 from roto_trl.trainers.checkpoint import BEST, LATEST, RunCheckpoints
 from roto_trl.trainers.errors import EXIT_STATUS, TrainingInterrupted
 from roto_trl.trainers.evaluation import evaluate, selection_key
 from roto_trl.trainers.interrupts import StopRequests
-from roto_trl.trainers.loggers import MetricLogger, read_csv
+from roto_trl.trainers.loggers import MetricLogger
 from roto_trl.trainers.ppo import rollout_stats
 from roto_trl.trainers.progress import TrainingProgress
 from roto_trl.trainers.provenance import record_sitting
@@ -56,6 +57,7 @@ def train(cfg: DictConfig, overrides: Sequence[str] = ()) -> Path:
     ``RESUMABLE`` ones may be given. The run directory is locked while this runs; a resumed run's
     logs are first cut back to its checkpoint, and a finished one is left unchanged.
     """
+    check_run_name(overrides)  # +exp=bounce_ppo ssl=fd needs a name of its own
     cfg = checked_config(cfg)
     for note in settle_for_machine(cfg):  # the profile's rollout floor, precision=auto
         print(note)
@@ -114,7 +116,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
         resume_frames=None if resumed is None else state.frames,
     )
     checkpoints = RunCheckpoints(run_dir, logger, None if resumed is None else state.frames)
-    start = time.perf_counter()
+    start, eval_before = time.perf_counter(), state.eval_clock.seconds  # this sitting's clocks
 
     def save(name: str) -> None:
         wall = state.wall_before + time.perf_counter() - start
@@ -174,7 +176,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             if evaluation_due(state.frames - batch.numel(), state.frames, every_frames) or done_training:
                 with state.eval_clock:
                     final_eval = evaluate(eval_env, agent, seed)
-                final_eval["time"] = state.eval_clock.last
+                final_eval["time"] = state.eval_clock.last  # seconds (eval.csv's column time)
                 logger.log("eval", {"iteration": state.iteration, **final_eval}, state.frames)
                 progress.postfix["eval_return"] = f"{final_eval['return_mean']:.2f}"
                 if selection_key(final_eval, headline) > selection_key(state.best_eval, headline):
@@ -186,9 +188,9 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             if checkpoints.saved_frames != state.frames and (stopping or interval_due):
                 save(LATEST)
                 last_save = time.perf_counter()
-            progress.postfix["fps"] = f"{stats['fps']:,.0f}"
             evals_left = evaluations_left(state.frames, cfg.total_frames, every_frames)
-            progress.iteration_done(state.frames, stats["fps"], evals_left, state.eval_clock.last)
+            training = time.perf_counter() - start - (state.eval_clock.seconds - eval_before)
+            progress.iteration_done(state.frames, stats["fps"], evals_left, state.eval_clock.last, training)
             if stop.signum is not None and not done_training:
                 raise TrainingInterrupted(state.frames, stop.signum, run_dir)
             if done_training:
@@ -213,23 +215,10 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
     return finish_run(cfg, run_dir, state, final_eval, wall, headline)
 
 
-OBJECTIVE_EVALS = 3  # a run's objective averages this many last evaluations
-
-
-def run_objective(run_dir: Path) -> float:
-    """A run's objective, what a sweep maximises: the mean ``return_mean`` of the last
-    ``OBJECTIVE_EVALS`` evaluations in ``<run_dir>/eval.csv`` (all of them when there are fewer),
-    steadier than the final evaluation alone."""
-    returns = read_csv(Path(run_dir) / "eval.csv").get("return_mean", [])  # a column, not a config key
-    if not returns:
-        raise ValueError(f"{run_dir}/eval.csv holds no evaluation")
-    last = returns[-OBJECTIVE_EVALS:]
-    return sum(last) / len(last)
-
-
 @hydra.main(config_path=str(resource_dir("conf")), config_name="train", version_base="1.3")
 def main(cfg: DictConfig) -> float:
-    """Train; return the run's objective (``run_objective``) for a sweep.
+    """Train; return the run's objective for a sweep (``analysis.runs.run_objective`` of the
+    sweeper's ``objective``: the task's headline metric unless the sweep names another).
 
     A single run reports in one line and exits with the status of ``errors.EXIT_STATUS``: bad
     input or a run directory in use (2), a NaN/inf stop (3), a failed write such as a full disk
@@ -266,7 +255,7 @@ def main(cfg: DictConfig) -> float:
         status, message = next(v for k, v in EXIT_STATUS.items() if isinstance(err, k))
         print(f"train: {message.format(err=err)}", file=sys.stderr)
         sys.exit(status)
-    return run_objective(summary.parent)
+    return run_objective(summary.parent, OmegaConf.select(hydra_cfg, "sweeper.objective", default="headline"))
 
 
 if __name__ == "__main__":

@@ -43,7 +43,7 @@ def write_run(root, name, seed, precision, evals, fps, best=None, latest=None):
     (run / "eval.csv").write_text("frames,return_mean,bounces_per_10s\n" + rows)
     (run / "train.csv").write_text(f"frames,fps\n100,{fps}\n200,{fps}\n")
     made = {"episodes": 1000, "seed": 5, "policy": "applied_mean"}
-    for file, value in (("eval.json", best), ("eval_latest.json", latest)):
+    for file, value in (("eval.json", best), ("eval-latest.json", latest)):
         if value is not None:
             result = {**made, "return_mean": 2 * value, "physical": {"bounces_per_10s": value}}
             (run / file).write_text(json.dumps(result))
@@ -89,7 +89,7 @@ def test_compare_pairs_runs_by_seed(tmp_path, capsys):
     with pytest.raises(SystemExit, match=no_column):
         analyse.main([*both, "--metric", "bounce"])
     # one run without its final checkpoint re-evaluated: every pair falls back to the in-run values
-    (test / "s2" / "eval_latest.json").unlink()
+    (test / "s2" / "eval-latest.json").unlink()
     analyse.main(both)
     assert "final evaluations during training" in capsys.readouterr().out
     rows = read_rows(out / "compare.csv")

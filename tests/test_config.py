@@ -13,6 +13,7 @@ from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.config import (
     RETIRED_TAG,
     AgentConfig,
+    check_run_name,
     compose_train,
     hydra_overrides,
     plain,
@@ -118,3 +119,27 @@ def test_a_run_directory_saved_before_the_schema_resumes_and_evaluates(tmp_path)
     train(compose_cfg([f"resume={run}", "total_frames=1024"]), ["total_frames=1024"])
     assert load_checkpoint(run)["frames"] == 1024
     assert OmegaConf.load(run / "config.yaml").total_frames == 1024
+
+
+def test_an_override_that_changes_what_an_experiment_trains_needs_a_name_of_its_own(tmp_path):
+    for overrides in (["+exp=bounce_ppo", "ssl=fd"], ["+exp=bounce_ppo", "env=find"], ["ssl=tr"]):
+        with pytest.raises(ValueError, match=r"changes what the run trains; name it with exp_name=<name>"):
+            train(compose_cfg([*overrides, f"run_dir={tmp_path / 'x'}"]), overrides)
+        check_run_name([*overrides, "exp_name=mine"])  # named: accepted
+    assert not (tmp_path / "x").exists()
+    check_run_name(["env=bounce", "agent.lr=1e-3"])  # no exp: the default name follows the task
+    check_run_name(["+exp=bounce_fd", "ssl.coeff=0.5", "ssl.memory_rollouts=3"])  # tuning, not identity
+
+
+def test_frame_counts_are_written_as_a_user_would_and_the_cpu_profile_sets_each_tasks_budget():
+    for written in ("2M", "2_000_000", "2e6", "2000000"):
+        assert compose_cfg(["+exp=bounce_fd", f"total_frames={written}"]).total_frames == 2_000_000
+    for bad in ("2.5", "0", "lots"):
+        with pytest.raises(ValueError, match=r"^total_frames must be a positive whole number of frames"):
+            compose_cfg(["+exp=bounce_fd", f"total_frames={bad}"])
+    budgets = {exp: compose_cfg([f"+exp={exp}", "+profile=cpu"]).total_frames for exp in EXPS}
+    assert {e: f for e, f in budgets.items() if not e.startswith("baoding")} == dict.fromkeys(
+        [e for e in EXPS if not e.startswith("baoding")], 2_000_000
+    )
+    assert {budgets[e] for e in EXPS if e.startswith("baoding")} == {10_000_000}
+    assert compose_cfg(["+exp=bounce_fd", "+profile=cpu", "total_frames=3M"]).total_frames == 3_000_000

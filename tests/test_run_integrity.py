@@ -269,7 +269,7 @@ def test_evaluate_and_record_check_their_arguments_first(tmp_path):
         ("torch_threads=-2", "torch_threads must be >= 1, got -2"),
         ("checkpoint.interval_minutes=abc", "checkpoint.interval_minutes must be a number, got abc"),
         ("checkpoint.interval_minutes=-1", "checkpoint.interval_minutes must be >= 0, got -1.0"),
-        ("+env.overrides.reward_scales.air=abc", r"reward_scales\['air'\] must be a number, got 'abc'"),
+        ("+env.overrides.reward_scales.air=abc", r"reward_scales\['air'\] must be a finite number, got 'ab"),
         ("+env.overrides.substep=2", r"unknown override\(s\) \['substep'\]"),
     ],
 )

@@ -22,10 +22,10 @@ from optuna.distributions import CategoricalDistribution, FloatDistribution, Int
 from optuna.trial import TrialState
 
 from hydra_plugins.roto_optuna_sweeper._study import render, search_space
+from roto_trl.analysis.runs import run_objective
 from roto_trl.config import hydra_overrides
 from roto_trl.sweep import main as sweep_main
 from roto_trl.sweeps.storage import load_study, open_storage, redact
-from roto_trl.train import run_objective
 from roto_trl.utils.resources import resource_dir
 
 # A sweep of tiny trials (a few seconds each): PPO's space with R, mb, le and c_ent fixed on the

@@ -141,7 +141,9 @@ def test_reference_file_ships_every_experiment():
 
 def test_table_rejects_bad_input_with_one_line(tmp_path):
     write_runs(tmp_path / "runs")
-    with pytest.raises(SystemExit, match=r"^analyse table: --at '5Q': give positive frame counts"):
+    with pytest.raises(
+        SystemExit, match=r"^analyse table: --at must be a positive whole number of frames .* got '5Q'"
+    ):
         analyse.main(["table", str(tmp_path / "runs" / "*"), "--at", "5Q", "--out", str(tmp_path / "t")])
     (tmp_path / "runs" / "bounce_fd-s1" / "eval.csv").unlink()
     with pytest.raises(SystemExit, match=r"bounce_fd-s1 has no eval\.csv"):
@@ -192,7 +194,7 @@ def test_stability_rows_by_hand(tmp_path, capsys):
     made = {"episodes": 100, "seed": 1, "policy": "applied_mean"}
     (run / "eval.json").write_text(json.dumps({**made, "physical": {"bounces_per_10s": 9.5}}))
     for value, printed_cell in ((7.7, "| 7.7, 0.81 |"), (7.5, "| 7.5, 0.79 (fell back) |")):
-        (run / "eval_latest.json").write_text(json.dumps({**made, "physical": {"bounces_per_10s": value}}))
+        (run / "eval-latest.json").write_text(json.dumps({**made, "physical": {"bounces_per_10s": value}}))
         analyse.main(["stability", str(run), "--out", str(out), "--at", "100,200"])
         with (out / "stability.csv").open(newline="") as handle:
             (row,) = list(csv.DictReader(handle))
@@ -201,13 +203,13 @@ def test_stability_rows_by_hand(tmp_path, capsys):
     # made otherwise (other episodes, or the sampled policy): not compared
     for other in ({"episodes": 200}, {"policy": "stochastic"}):
         latest = {**made, **other, "physical": {"bounces_per_10s": 7.7}}
-        (run / "eval_latest.json").write_text(json.dumps(latest))
+        (run / "eval-latest.json").write_text(json.dumps(latest))
         analyse.main(["stability", str(run), "--out", str(out), "--at", "100,200"])
         with (out / "stability.csv").open(newline="") as handle:
             (row,) = list(csv.DictReader(handle))
         assert math.isnan(float(row["held_checkpoints"]))
     capsys.readouterr()
-    (run / "eval_latest.json").unlink()
+    (run / "eval-latest.json").unlink()
     # a log with the headline metric of the training episodes reads that, in the evaluation's unit
     (run / "train.csv").write_text(
         "frames,episodes,episode/bounces,episode/bounces_per_10s\n50,2,1,1.5\n200,2,8,12\n"

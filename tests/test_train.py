@@ -118,7 +118,9 @@ def test_a_smoke_run_of_each_code_path_writes_its_run_directory(exp, tmp_path):
     assert 0 < float(rows(run / "train.csv")[-1]["time/eval_share"]) < 1
     assert (run / "config.yaml").is_file() and (run / "plots" / "eval.png").is_file()
     assert json.loads((run / "eval.json").read_text())["physical"]  # the best checkpoint's metrics
-    assert "![evaluation](plots/eval.png)" in (run / "index.md").read_text()
+    index = (run / "index.md").read_text()
+    assert "![evaluation](plots/eval.png)" in index and "| metric | what | unit | value |" in index
+    assert ".lock" not in index and "time_s" in json.loads((run / "summary.json").read_text())["final_eval"]
     state = load_checkpoint(run)
     assert state["frames"] == 512 and "value_norm.mean" in "".join(state["agent"])
     assert (run / "checkpoints" / "best.pt").is_file()

@@ -238,6 +238,7 @@ class StudyLoop:
         )
         self.study_id = self.storage.get_study_id_from_name(study_name)
         self.study.set_user_attr("arguments", list(arguments))  # for `python -m roto_trl.sweep best`
+        self.study.set_user_attr("objective", str(conf.objective))  # what the trials' values are
         record_study(self.sweep_dir, study_name, conf.storage)
         self.failures, self.last_failure = 0, ""
 

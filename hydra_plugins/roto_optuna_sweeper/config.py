@@ -15,6 +15,7 @@ class OptunaSweeperConf:
 
     _target_: str = "hydra_plugins.roto_optuna_sweeper.sweeper.OptunaSweeper"
     params: dict[str, str] = field(default_factory=dict)  # key -> Hydra sweep (choice, interval, range)
+    objective: str = "headline"  # maximised: the task's headline metric, or an eval.csv column (return_mean)
     n_trials: int = 20  # stop once the study holds this many COMPLETE trials (all workers together)
     n_jobs: int = 1  # trials launched at once, through hydra/launcher (joblib: in parallel processes)
     n_startup_trials: int = 5  # TPE's random trials before it models the results

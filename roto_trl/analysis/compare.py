@@ -5,9 +5,9 @@ both ways (docs/recipe.md): a seed's pair shares its worlds and its first weight
 the difference of the pair carries much less of the seed-to-seed spread than two means do.
 
 Each pair compares the final policies and whether each run held what it learnt:
-- when every run has its final checkpoint re-evaluated like its best one (``eval_latest.json``
+- when every run has its final checkpoint re-evaluated like its best one (``eval-latest.json``
   made as ``eval.json``, e.g. ``evaluate.py run=<run> episodes=1000`` and ``evaluate.py
-  run=<run> checkpoint=latest episodes=1000 out=<run>/eval_latest.json``), the final
+  run=<run> checkpoint=latest episodes=1000``), the final
   checkpoint's value and final / best checkpoint (``RunStability.held_checkpoints``);
 - otherwise the final evaluation during training (``eval.csv``) and final / best evaluation;
   which of the two was used is printed with the table.
@@ -111,7 +111,7 @@ def compare_runs(base_runs: list[Run], test_runs: list[Run], metric: str | None 
         counts = str(episodes[0]) if len(episodes) == 1 else f"{episodes[0]}-{episodes[-1]}"
         source = f"final checkpoints re-evaluated on {counts} episodes"
     else:
-        source = "final evaluations during training (not every run has eval_latest.json made like eval.json)"
+        source = "final evaluations during training (not every run has eval-latest.json made like eval.json)"
     return Comparison(
         metric=paired[0].metric,
         source=source,

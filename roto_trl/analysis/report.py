@@ -11,16 +11,32 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from roto_trl.analysis.metrics import describe
 from roto_trl.analysis.runs import read_json
+
+
+def _shown(value: Any) -> str:
+    return (
+        f"{value:,.4g}"
+        if isinstance(value, float)
+        else f"{value:,}"
+        if isinstance(value, int)
+        else str(value)
+    )
 
 
 def _table(rows: dict[str, Any]) -> list[str]:
     lines = ["| | |", "|---|---|"]
+    lines += [f"| {key} | {_shown(value)} |" for key, value in rows.items()]
+    return lines
+
+
+def _metric_table(rows: dict[str, Any]) -> list[str]:
+    """Logged numbers by key, with what each is and its unit (``analysis.metrics``)."""
+    lines = ["| metric | what | unit | value |", "|---|---|---|---|"]
     for key, value in rows.items():
-        shown = (
-            f"{value:,.4g}" if isinstance(value, float) else f"{value:,}" if isinstance(value, int) else value
-        )
-        lines.append(f"| {key} | {shown} |")
+        name, unit = describe(key)
+        lines.append(f"| `{key}` | {name} | {unit} | {_shown(value)} |")
     return lines
 
 
@@ -39,7 +55,8 @@ def write_index(run_dir: Path) -> Path:
                 "frames": summary["frames"],
                 "iterations": summary["iterations"],
                 "wall time (min)": summary["wall_time_s"] / 60.0,
-                "frames / s": summary["frames_per_s"] or 0.0,
+                "frames / s (evaluation included)": summary["frames_per_s"] or 0.0,
+                "evaluation's share of the wall time": summary["eval_share"],
             }
         )
     else:
@@ -49,8 +66,8 @@ def write_index(run_dir: Path) -> Path:
         for label, key in (("best", "best_eval"), ("final", "final_eval")):
             ev = summary.get(key)
             if ev:
-                shown = {k: v for k, v in ev.items() if k != "time"}
-                lines += [f"**{label} evaluation**", "", *_table(shown), ""]
+                shown = {k: v for k, v in ev.items() if not k.startswith("time")}
+                lines += [f"**{label} evaluation**", "", *_metric_table(shown), ""]
     lines += ["## Physical metrics", ""]
     if evaluation:
         checkpoint = Path(evaluation["checkpoint"]).name
@@ -60,9 +77,11 @@ def write_index(run_dir: Path) -> Path:
         )
         lines += [
             "",
-            *_table({"return": f"{evaluation['return_mean']:.3f} ± {evaluation['return_std']:.3f}"}),
+            *_metric_table(
+                {"return_mean": f"{evaluation['return_mean']:.3f} ± {evaluation['return_std']:.3f}"}
+            ),
         ]
-        lines += _table(evaluation["physical"])[2:]
+        lines += _metric_table(evaluation["physical"])[2:]
         if "video" in evaluation:
             lines += [
                 "",
@@ -71,7 +90,7 @@ def write_index(run_dir: Path) -> Path:
     else:
         lines.append(f"Not evaluated yet: `python roto_trl/evaluate.py run={run_dir}`.")
     lines += ["", "## Training", "", "![training](plots/train.png)", ""]
-    files = [p.name for p in sorted(run_dir.iterdir()) if p.name != "index.md"]
+    files = [p.name for p in sorted(run_dir.iterdir()) if p.name not in ("index.md", ".lock", ".lock.owner")]
     lines += ["## Files", "", ", ".join(f"`{name}`" for name in files), ""]
     out = run_dir / "index.md"
     out.write_text("\n".join(lines))

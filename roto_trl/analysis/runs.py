@@ -93,8 +93,9 @@ def eval_minutes(run: Run, frames: np.ndarray) -> np.ndarray:
     return np.interp(frames, at, wall)
 
 
-def learning_curve(runs: list[Run], x: str = "frames") -> Curve:
-    """Mean ± 1 std (across runs) of the evaluation return against frames or wall time.
+def learning_curve(runs: list[Run], x: str = "frames", metric: str = "return_mean") -> Curve:
+    """Mean ± 1 std (across runs) of an evaluation ``metric`` (an ``eval.csv`` column) against
+    frames or wall time.
 
     ``x`` is ``"frames"`` or ``"minutes"`` (training wall time, its evaluations included, for
     comparisons at an equal time budget). Each run's ``eval.csv`` is linearly interpolated onto
@@ -104,8 +105,10 @@ def learning_curve(runs: list[Run], x: str = "frames") -> Curve:
     series = []
     for run in runs:
         ev = run_csv(run, "eval.csv", "curves need runs that have evaluated at least once")
+        if metric not in ev:
+            raise ValueError(f"{run.path}/eval.csv has no column {metric!r}; columns: {sorted(ev)}")
         frames = np.asarray(ev["frames"])
-        series.append((frames if x == "frames" else eval_minutes(run, frames), np.asarray(ev["return_mean"])))
+        series.append((frames if x == "frames" else eval_minutes(run, frames), np.asarray(ev[metric])))
     end = min(points[-1] for points, _ in series)
     grid = np.unique(np.concatenate([points[points <= end] for points, _ in series]))
     values = np.stack([np.interp(grid, points, returns) for points, returns in series])
@@ -128,3 +131,33 @@ def physical_metrics(runs: list[Run]) -> dict[str, np.ndarray]:
         for name, value in {"return": result["return_mean"], **result["physical"]}.items():
             values.setdefault(name, []).append(float(value))
     return {name: np.asarray(v) for name, v in values.items()}
+
+
+def headline_of(run_dir: Path) -> str | None:
+    """The headline metric of the run's task (its ``config.yaml``), or None when unknown."""
+    from roto_trl.envs.factory import TASKS  # loads the simulator: only when asked
+
+    path = Path(run_dir) / "config.yaml"
+    task = str(OmegaConf.load(path).env.task) if path.is_file() else None
+    return TASKS[task].HEADLINE_METRIC if task in TASKS else None
+
+
+OBJECTIVE_EVALS = 3  # a run's objective averages this many last evaluations
+
+
+def run_objective(run_dir: Path, metric: str = "headline") -> float:
+    """A run's objective, what a sweep maximises: the mean of ``metric`` over the last
+    ``OBJECTIVE_EVALS`` evaluations in ``<run_dir>/eval.csv`` (all of them when there are fewer),
+    steadier than the final evaluation alone. ``metric``: ``headline`` (the task's physical
+    metric: ``reached_3cm``, ``bounces_per_10s``, ``rotations_per_10s``) or any ``eval.csv``
+    column, e.g. ``return_mean``."""
+    column = headline_of(run_dir) if metric == "headline" else metric
+    table = read_csv(Path(run_dir) / "eval.csv")
+    if not table.get("frames"):
+        raise ValueError(f"{run_dir}/eval.csv holds no evaluation")
+    if column not in table:
+        raise ValueError(f"{run_dir}/eval.csv has no column {column!r}; columns: {sorted(table)}")
+    values = [v for v in table[column] if np.isfinite(v)][-OBJECTIVE_EVALS:]
+    if not values:
+        raise ValueError(f"{run_dir}/eval.csv holds no value of {column}")
+    return float(sum(values) / len(values))

@@ -9,8 +9,9 @@ best checkpoint for the results table) adds its headline value and episode count
 
 The best of a run's evaluations is the maximum of some twenty noisy draws, so final / best reads
 low even for a run that kept what it learnt (Find's 0-or-1 metric on 128 worlds: a flat run
-passes 0.8 about 77 % of the time). ``eval_latest.json`` (``evaluate.py checkpoint=latest
-out=<run>/eval_latest.json``) gives the fair test: the final checkpoint against the best one,
+passes 0.8 most of the time, but not always: docs/recipe.md). ``eval-latest.json`` (``evaluate.py
+checkpoint=latest``; ``eval_latest.json`` in runs evaluated before that name) gives the fair test:
+the final checkpoint against the best one,
 both re-evaluated on the same fresh episodes (``evaluate.py`` seeds them alike) with the same
 policy form, ``held_checkpoints``.
 
@@ -43,6 +44,9 @@ TRAINING_METRIC = {  # runs whose train.csv lacks episode/<headline>
 }
 TRAINING_WINDOW = 49_152  # 12 iterations of 256 worlds x 16 steps: a few hundred episodes
 DEFAULT_MARKS = (300_000, 500_000, 1_000_000, 1_500_000, 2_000_000)
+
+# the final checkpoint's result (evaluate.py checkpoint=latest), and its name in runs evaluated before
+LATEST_RESULTS = ("eval-latest.json", "eval_latest.json")
 
 
 def training_at(
@@ -89,7 +93,7 @@ class RunStability:
     frames_per_s: float
     checkpoint_value: float | None = None  # eval.json's value of ``metric`` (best checkpoint)
     checkpoint_episodes: int | None = None
-    final_checkpoint_value: float | None = None  # eval_latest.json's value (the final checkpoint)
+    final_checkpoint_value: float | None = None  # eval-latest.json's value (the final checkpoint)
     final_checkpoint_episodes: int | None = None
     training_metric: str = ""
     training: dict[int, float] | None = None  # mark (frames) -> training episodes' mean
@@ -165,13 +169,14 @@ def run_stability(run: Run, marks=DEFAULT_MARKS, metric: str | None = None) -> R
         row.training_at_best, row.training_at_final = training_at(
             frames, values, episodes, [row.best_frames, row.frames]
         )
-    best_eval, final_eval = (read_json(run.path / name) for name in ("eval.json", "eval_latest.json"))
+    best_eval = read_json(run.path / "eval.json")
+    final_eval = next(filter(None, (read_json(run.path / name) for name in LATEST_RESULTS)), None)
     if best_eval is not None:
         row.checkpoint_value = result_value(best_eval, metric)
         row.checkpoint_episodes = int(best_eval["episodes"])
         # only an evaluation made like the best checkpoint's compares with it
         if final_eval is not None and all(
-            final_eval.get(k) == best_eval.get(k) for k in ("episodes", "seed", "policy", "weights")
+            final_eval.get(k) == best_eval.get(k) for k in ("episodes", "seed", "policy")
         ):
             row.final_checkpoint_value = result_value(final_eval, metric)
             row.final_checkpoint_episodes = int(final_eval["episodes"])

@@ -14,6 +14,13 @@ from roto_trl.trainers.progress import format_duration
 from roto_trl.trainers.state import TrainState
 
 
+def seconds_named(result: dict[str, float] | None) -> dict[str, float] | None:
+    """An evaluation's numbers with its duration ``time`` named with its unit, ``time_s``."""
+    if result is None:
+        return None
+    return {("time_s" if k == "time" else k): v for k, v in result.items()}
+
+
 def headline_line(label: str, result: dict[str, float] | None, headline: str) -> str:
     """``best evaluation: bounces_per_10s 12.3, return 45.6 (at 1,200,000 frames)``."""
     if result is None:
@@ -44,8 +51,8 @@ def finish_run(
         "eval_time_s": round(state.eval_clock.seconds, 1),
         "eval_share": round(state.eval_clock.share(wall), 4),
         "headline_metric": headline,
-        "best_eval": state.best_eval,
-        "final_eval": final_eval,
+        "best_eval": seconds_named(state.best_eval),
+        "final_eval": seconds_named(final_eval),
         "run_dir": str(run_dir.resolve()),
     }
     path = run_dir / "summary.json"

@@ -14,31 +14,23 @@ from __future__ import annotations
 
 import csv
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from roto_trl.analysis.runs import Run, by_experiment, run_csv
+from roto_trl.utils.cli import frame_count
 from roto_trl.utils.resources import resource_path
 
 REFERENCE_FILE = "reference/authors_curves.csv"  # under assets/
 FINAL = "final"
-_UNITS = {"": 1, "k": 1_000, "M": 1_000_000, "G": 1_000_000_000}
-_FRAMES = re.compile(r"(\d+(?:\.\d+)?(?:e\d+)?)([kMG]?)")
 
 
 def parse_frames(text: str) -> list[int]:
-    """``"2M,5M,10M"`` -> ``[2_000_000, 5_000_000, 10_000_000]`` (suffixes k, M, G; plain
-    numbers too); a ``ValueError`` naming the bad item otherwise."""
-    frames = []
-    for item in text.split(","):
-        match = _FRAMES.fullmatch(item.strip())
-        if match is None or float(match[1]) <= 0:
-            raise ValueError(f"--at {item.strip()!r}: give positive frame counts such as 2M,5M,10M or 500k")
-        frames.append(round(float(match[1]) * _UNITS[match[2]]))
-    return frames
+    """``"2M,5M,10M"`` -> ``[2_000_000, 5_000_000, 10_000_000]`` (``utils.cli.frame_count``'s
+    forms); a ``ValueError`` naming the bad item otherwise."""
+    return [frame_count(item, "--at") for item in text.split(",")]
 
 
 def frames_label(frames: int) -> str:

@@ -12,6 +12,7 @@ from roto_trl.envs.baoding import BaodingEnv
 from roto_trl.envs.bounce import BounceEnv
 from roto_trl.envs.find import FindEnv
 from roto_trl.envs.one_thread import OneThreadTransformedEnv
+from roto_trl.envs.robot_env import check_reward_scales
 from roto_trl.transforms import BinariseContacts, LastAction, ScaleProprioception
 
 # task name -> env class (its CONFIG, SENSORS, VEL_SCALE and PROP_EXTRA say the rest)
@@ -39,11 +40,8 @@ def task_config(task: str, **overrides):
             raise ValueError(
                 f"unknown reward term(s) {bad} for task {task!r}; terms: {sorted(config.reward_scales)}"
             )
-        for term, value in scales.items():
-            try:
-                config.reward_scales[term] = float(value)
-            except (TypeError, ValueError):
-                raise ValueError(f"reward_scales[{term!r}] must be a number, got {value!r}") from None
+        check_reward_scales(scales)
+        config.reward_scales.update({term: float(value) for term, value in scales.items()})
     return config
 
 
@@ -106,6 +104,8 @@ def make_env(
     """
     if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {seed!r}")
     config = task_config(task, **overrides)
     check_memory(task, num_envs, config.history)
     base = TASKS[task](num_envs, config, seed=seed, device=device)

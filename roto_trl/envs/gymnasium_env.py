@@ -44,6 +44,15 @@ def _observation_space(td: TensorDictBase) -> spaces.Dict:
     )
 
 
+def check_reset_arguments(seed, options) -> None:
+    """One-line errors for ``reset``'s arguments: ``seed`` None or an integer >= 0, ``options``
+    None or a dict (the RoTO envs read no option; a dict of them is accepted as Gymnasium asks)."""
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0):
+        raise ValueError(f"reset(seed=...) must be None or an integer >= 0, got {seed!r}")
+    if options is not None and not isinstance(options, dict):
+        raise ValueError(f"reset(options=...) must be None or a dict, got {options!r}")
+
+
 def _open(task: str, num_envs: int, seed: int, overrides: dict):
     """The batched env, its first output, one env's observation space and action space."""
     env = make_env(task, num_envs, seed=seed, **overrides)
@@ -106,6 +115,7 @@ class RoToVectorEnv(VectorEnv):
         self.action_space = gymnasium.vector.utils.batch_space(self.single_action_space, num_envs)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        check_reset_arguments(seed, options)
         if seed is not None:
             self.env.set_seed(int(seed))
         self._td = self.env.reset()
@@ -161,6 +171,7 @@ class RoToEnv(gymnasium.Env):
         self._ended = False
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        check_reset_arguments(seed, options)
         super().reset(seed=seed)
         self._ended = False
         if seed is not None:

@@ -13,6 +13,10 @@ and would leave part of the action range doing nothing.
 
 from __future__ import annotations
 
+import dataclasses
+import math
+import types
+import typing
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -26,6 +30,32 @@ from roto_trl.envs.rendering import SceneRenderer
 from roto_trl.envs.scene import CONTROL_DT, load_scene
 
 _ONES3 = torch.ones(3, 1, dtype=torch.float64)  # sums a force's three squared components (sensor_force)
+
+
+def check_field_types(config) -> None:
+    """A one-line ``ValueError`` for the first field of a task config whose value is not of its
+    declared type: an ``int`` field takes integers only (not ``2.5``, not ``True``), a ``float``
+    field finite numbers; ``X | None`` also takes None."""
+    hints = typing.get_type_hints(type(config))
+    for f in dataclasses.fields(config):
+        value, kind = getattr(config, f.name), hints[f.name]
+        options = typing.get_args(kind) if isinstance(kind, types.UnionType) else (kind,)
+        if value is None and type(None) in options:
+            continue
+        if int in options and not (isinstance(value, int) and not isinstance(value, bool)):
+            raise ValueError(f"{f.name} must be an integer, got {value!r}")
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        if float in options and not (number and math.isfinite(value)):
+            raise ValueError(f"{f.name} must be a finite number, got {value!r}")
+
+
+def check_reward_scales(scales: dict) -> None:
+    """A one-line ``ValueError`` unless every reward scale is a finite number (NaN or inf would make
+    every reward NaN or inf)."""
+    for term, value in scales.items():
+        number = isinstance(value, int | float) and not isinstance(value, bool)
+        if not (number and math.isfinite(value)):
+            raise ValueError(f"reward_scales[{term!r}] must be a finite number, got {value!r}")
 
 
 @dataclass
@@ -52,12 +82,17 @@ class TaskConfig:
     reward_scales: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        check_field_types(self)
         if not 0.0 < self.action_ema <= 1.0:
             raise ValueError(f"action_ema must be in (0, 1], got {self.action_ema}")
-        if int(self.history) < 1:
-            raise ValueError(f"history must be >= 1, got {self.history}")
-        if int(self.episode_steps) < 1:
-            raise ValueError(f"episode_steps must be >= 1, got {self.episode_steps}")
+        for name in ("substeps", "history", "episode_steps"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.num_threads is not None and self.num_threads < 1:
+            raise ValueError(f"num_threads must be >= 1 or None (every core), got {self.num_threads}")
+        if self.contact_threshold < 0:
+            raise ValueError(f"contact_threshold must be >= 0 N, got {self.contact_threshold}")
+        check_reward_scales(self.reward_scales)
 
 
 def tendon_bounds(

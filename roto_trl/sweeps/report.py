@@ -29,12 +29,15 @@ def _param_names(trials: list[FrozenTrial]) -> list[str]:
     return names
 
 
+MIN_TRIALS_FOR_IMPORTANCE = 10  # fewer trials give importances that are mostly noise
+
+
 def importances(study: optuna.Study) -> tuple[dict[str, float], str]:
     """Each parameter's importance over the complete trials (Optuna's default evaluator,
     PED-ANOVA), or ``{}`` and why not."""
     complete = study.get_trials(deepcopy=False, states=(TrialState.COMPLETE,))
-    if len(complete) < 2:
-        return {}, "needs at least 2 complete trials"
+    if len(complete) < MIN_TRIALS_FOR_IMPORTANCE:
+        return {}, f"needs at least {MIN_TRIALS_FOR_IMPORTANCE} complete trials, has {len(complete)}"
     try:
         return optuna.importance.get_param_importances(study), ""
     except (ValueError, RuntimeError) as err:  # e.g. all objectives equal
@@ -118,6 +121,13 @@ def plot_study(study: optuna.Study, out_dir: Path, importance: dict[str, float])
     return paths
 
 
+def objective_name(study: optuna.Study) -> str:
+    """What the study's trial values are: the sweeper's ``objective`` (studies from before it was
+    configurable maximised the evaluation return)."""
+    objective = study.user_attrs.get("objective", "return_mean")
+    return "headline metric of the task" if objective == "headline" else f"`{objective}`"
+
+
 def write_summary(study: optuna.Study, out_dir: Path) -> Path:
     """Write ``summary.md`` and the plots of ``plot_study`` into ``out_dir``; returns the Markdown."""
     out_dir = Path(out_dir)
@@ -127,8 +137,8 @@ def write_summary(study: optuna.Study, out_dir: Path) -> Path:
         f"# Sweep {study.study_name}",
         "",
         f"{len(trials)} trials ({', '.join(f'{n} {s.lower()}' for s, n in counts.items()) or 'none yet'}). "
-        "Objective (maximised): each run's mean evaluation return over its last evaluations "
-        "(`roto_trl.train.run_objective`).",
+        f"Objective (maximised): each run's mean {objective_name(study)} over its last evaluations "
+        "(`roto_trl.analysis.runs.run_objective`).",
         "",
     ]
     importance, why_not = importances(study)

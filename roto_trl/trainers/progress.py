@@ -1,10 +1,12 @@
-"""A run's progress bar that moves while the collector steps, and its first estimate of the time
-to the frame budget.
+"""A run's progress bar that moves while the collector steps, with one speed and the time left.
 
 A long run's first iteration can take minutes (4096 worlds x 32 steps); a bar updated once per
 iteration would show nothing until then. The bar here moves by one step of every world each
 time the policy acts during collection (a forward hook on the policy, active only while the
-loop collects, so evaluation episodes do not count).
+loop collects, so evaluation episodes do not count). Its speed is the training frames per
+second of this sitting (evaluations left out), and the time left is the frames still to train at
+that speed plus the evaluations still due at the last one's duration (``time_to_budget``);
+tqdm's own rate and estimate, which follow the bar's jumps, are not shown.
 """
 
 from __future__ import annotations
@@ -58,8 +60,14 @@ class TrainingProgress:
 
     def __init__(self, total_frames: int, frames: int, num_envs: int, enabled: bool) -> None:
         self.bar = tqdm(
-            total=total_frames, initial=frames, unit="frames", unit_scale=True, disable=not enabled
+            total=total_frames,
+            initial=frames,
+            unit="frames",
+            unit_scale=True,
+            disable=not enabled,
+            bar_format="{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}{postfix}]",
         )
+        self.start_frames = int(frames)
         self.total_frames = int(total_frames)
         self.num_envs = int(num_envs)
         self.collecting = False
@@ -74,10 +82,19 @@ class TrainingProgress:
         if self.collecting:
             self.bar.update(self.num_envs)
 
-    def iteration_done(self, frames: int, fps: float, evals_left: int, eval_seconds: float) -> None:
-        """Set the bar to ``frames``; after the first timed iteration print the expected speed and
-        the time to the budget (training at ``fps`` plus ``evals_left`` evaluations)."""
+    def iteration_done(
+        self, frames: int, fps: float, evals_left: int, eval_seconds: float, train_seconds: float = 0.0
+    ) -> None:
+        """Set the bar to ``frames`` with the sitting's training speed and the time left
+        (``train_seconds``: this sitting's wall time without its evaluations); after the first
+        timed iteration print the expected speed and the time to the budget (training at ``fps``
+        plus ``evals_left`` evaluations)."""
         self.bar.n = frames
+        remaining = max(0, self.total_frames - frames)
+        speed = (frames - self.start_frames) / train_seconds if train_seconds > 0 else fps
+        if speed > 0:
+            self.postfix["speed"] = f"{speed:,.0f} frames/s"
+            self.postfix["left"] = format_duration(time_to_budget(remaining, speed, evals_left, eval_seconds))
         self.bar.set_postfix(self.postfix, refresh=False)
         self.bar.refresh()
         if not self._estimated and fps > 0:

@@ -3,6 +3,7 @@ checks of config values they and ``train.py`` share."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
 from omegaconf import DictConfig, OmegaConf
@@ -36,6 +37,27 @@ def parse_key_values(prog: str, argv: list[str], defaults: dict, example: str, u
     if missing:
         raise SystemExit(f"{prog}: give {' '.join(k + '=...' for k in missing)}; e.g. {example}")
     return cfg
+
+
+_UNITS = {"": 1, "k": 1_000, "M": 1_000_000, "G": 1_000_000_000}
+_FRAMES = re.compile(r"(\d+(?:\.\d+)?(?:e\d+)?)([kMG]?)")
+
+
+def frame_count(value, key: str) -> int:
+    """A frame count written as a user would: ``2000000``, ``2_000_000``, ``2e6``, ``2M``, ``500k``
+    (suffixes k, M, G), as a positive int; a one-line ``ValueError`` naming ``key`` otherwise."""
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        text = repr(value)
+    elif isinstance(value, str):
+        text = value.strip().replace("_", "")
+    else:
+        text = ""
+    match = _FRAMES.fullmatch(text.removesuffix(".0")) if text else None
+    frames = round(float(match[1]) * _UNITS[match[2]]) if match else 0
+    if frames < 1 or (match and float(match[1]) * _UNITS[match[2]] != frames):
+        example = "such as 2M, 2_000_000 or 2e6"
+        raise ValueError(f"{key} must be a positive whole number of frames {example}, got {value!r}")
+    return frames
 
 
 def is_number(value) -> bool:
