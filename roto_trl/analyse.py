@@ -37,6 +37,7 @@ from roto_trl.analysis.rollouts import collect
 from roto_trl.analysis.runs import (
     Run,
     by_experiment,
+    countable,
     find_runs,
     headline_of,
     learning_curve,
@@ -326,7 +327,7 @@ def cmd_stability(runs: list[Run], out: Path, args) -> list[Path]:
 def cmd_compare(runs: list[Run], out: Path, args) -> list[Path]:
     """The runs against the --against runs, paired by seed: finals, their paired difference and
     its standard error, holding, frames/s."""
-    base = find_runs(args.against)
+    base = countable(find_runs(args.against), "compare", unfinished=args.unfinished)
     one_task(runs + base, "compare")
     comparison = compare_runs(base, runs, args.metric)
     markdown = comparison_markdown(comparison)
@@ -346,6 +347,9 @@ COMMANDS = {
     "stability": cmd_stability,
     "compare": cmd_compare,
 }
+
+
+COUNTING = ("curves", "table", "stability", "compare")  # the commands that count runs over seeds
 
 
 def positive_int(text: str) -> int:
@@ -368,6 +372,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
         p.add_argument(
             "--out", type=Path, default=None, help=f"output directory (default runs/analysis/{name})"
         )
+        if name in COUNTING:
+            p.add_argument(
+                "--unfinished", action="store_true", help="count runs still going (or stopped early) too"
+            )
         if name in ("mi", "latent", "tactile"):
             p.add_argument("--checkpoint", default="best", choices=["best", "latest"])
             p.add_argument(
@@ -422,6 +430,8 @@ def main(argv: list[str] | None = None) -> list[Path]:
     out = args.out or Path("runs") / "analysis" / args.command
     try:
         runs = find_runs(args.runs)
+        if args.command in COUNTING:  # a table or figure over seeds: only runs it can count
+            runs = countable(runs, args.command, unfinished=args.unfinished)
         out.mkdir(parents=True, exist_ok=True)
         written = COMMANDS[args.command](runs, out, args)
     except (ValueError, FileNotFoundError) as err:  # bad input: one line, no traceback

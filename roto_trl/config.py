@@ -166,6 +166,15 @@ class LoggerConfig:
 
 
 @dataclass
+class DivergenceConfig:
+    """When a run counts as diverging (``roto_trl.trainers.divergence``)."""
+
+    grad_norm: float = _range(1000.0, gt=0)
+    loss: float = _range(10000.0, gt=0)
+    stop_after: int | None = _range(5, ge=1)
+
+
+@dataclass
 class TrainConfig:
     """Everything ``roto_trl/train.py`` reads (``conf/train.yaml``)."""
 
@@ -183,6 +192,7 @@ class TrainConfig:
     torch_threads: int | None = _range(None, ge=1)
     eval: EvalConfig = field(default_factory=EvalConfig)
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    divergence: DivergenceConfig = field(default_factory=DivergenceConfig)
     progress: bool = True
 
 

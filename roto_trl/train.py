@@ -37,7 +37,8 @@ from roto_trl.analysis.summary import finish_run
 from roto_trl.config import check_run_name, checked_config, hydra_overrides, plain, settle_for_machine
 from roto_trl.trainers import builders as build
 from roto_trl.trainers.checkpoint import BEST, LATEST, RunCheckpoints
-from roto_trl.trainers.errors import EXIT_STATUS, TrainingInterrupted
+from roto_trl.trainers.divergence import DivergenceWatch
+from roto_trl.trainers.errors import EXIT_STATUS, NonFiniteError, TrainingInterrupted
 from roto_trl.trainers.evaluation import evaluate, selection_key
 from roto_trl.trainers.interrupts import StopRequests
 from roto_trl.trainers.loggers import MetricLogger
@@ -130,6 +131,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
 
     # 4. the loop
     every_frames, seed = cfg.eval.every_frames, build.eval_seed(cfg)
+    divergence = DivergenceWatch.from_config(cfg)
     ep_return = torch.zeros(cfg.env.num_envs, device=cfg.device)
     final_eval: dict[str, float] | None = None
     progress = TrainingProgress(cfg.total_frames, state.frames, cfg.env.num_envs, cfg.progress)
@@ -170,6 +172,9 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             logger.log("train", stats, state.frames)
             for row in aux_rows:  # the auxiliary loss of every minibatch, CSV only
                 logger.log("aux", {"iteration": state.iteration, **row}, state.frames, csv_only=True)
+            warning = divergence.check(stats, state.frames)  # a DivergedError after stop_after in a row
+            if warning:
+                progress.bar.write(warning, file=sys.stderr)
 
             out_of_time = cfg.time_limit_minutes is not None and wall >= 60 * cfg.time_limit_minutes
             done_training = state.frames >= cfg.total_frames or out_of_time
@@ -199,6 +204,9 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
                 break
             t_collect = time.perf_counter()
             progress.collecting = True
+    except NonFiniteError as err:  # the last checkpoint stands: say which, for the report
+        err.run_dir, err.saved_frames = run_dir, checkpoints.saved_frames
+        raise
     except KeyboardInterrupt as err:  # a second signal: the iteration is abandoned
         if isinstance(err, TrainingInterrupted):
             raise

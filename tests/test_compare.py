@@ -37,8 +37,10 @@ def write_run(root, name, seed, precision, evals, fps, best=None, latest=None):
     run.mkdir(parents=True)
     agent = f"agent:\n  precision: {precision}\n"
     (run / "config.yaml").write_text(
-        f"exp_name: bounce_ppo\nseed: {seed}\nrun_dir: {run}\n{agent}env:\n  task: bounce\n"
+        f"exp_name: bounce_ppo\nseed: {seed}\ntotal_frames: {100 * len(evals)}\nrun_dir: {run}\n"
+        f"{agent}env:\n  task: bounce\n"
     )
+    (run / "summary.json").write_text("{}")
     rows = "".join(f"{100 * (i + 1)},{v},{v}\n" for i, v in enumerate(evals))
     (run / "eval.csv").write_text("frames,return_mean,bounces_per_10s\n" + rows)
     (run / "train.csv").write_text(f"frames,fps\n100,{fps}\n200,{fps}\n")
@@ -110,10 +112,15 @@ def test_compare_rejects_sets_it_cannot_pair(tmp_path):
         analyse.main(args)
     write_run(test, "s0", 0, "bfloat16", [1, 2], 1000)
     write_run(test, "s0-again", 0, "bfloat16", [1, 2], 1000)
-    with pytest.raises(SystemExit, match=r"the runs holds two runs of seed 0: give one run per seed"):
+    with pytest.raises(
+        SystemExit, match=r"s0 and .*s0-again are both seed 0 of bounce_ppo: keep one of them"
+    ):
         analyse.main(args)
+    (test / "s0-again" / "summary.json").unlink()  # unfinished: left out with a line, no longer a duplicate
     with pytest.raises(SystemExit, match=r"compare compares runs of one task"):
-        (test / "s1" / "config.yaml").write_text("exp_name: find_ppo\nseed: 1\nenv:\n  task: find\n")
+        (test / "s1" / "config.yaml").write_text(
+            "exp_name: find_ppo\nseed: 1\ntotal_frames: 200\nenv:\n  task: find\n"
+        )
         analyse.main(args)
     with pytest.raises(SystemExit):  # argparse: --against is required
         analyse.main(["compare", str(test / "*")])

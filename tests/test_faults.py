@@ -64,3 +64,89 @@ def test_gymnasium_reset_checks_its_seed_and_options():
             env.reset(options="x")
         env.reset(seed=3, options={})
         env.close()
+
+
+# ---------------------------------------------------------------------------- analysis of run directories
+
+
+def hand_run(root, name, seed, evals, budget=200, finished=True, exp="find_ppo"):
+    """A Find run written by hand: ``evals`` its reached_3cm at frames 100, 200, ..."""
+    run = root / name
+    run.mkdir(parents=True)
+    (run / "config.yaml").write_text(
+        f"exp_name: {exp}\nseed: {seed}\ntotal_frames: {budget}\nenv:\n  task: find\n"
+    )
+    rows = "".join(f"{100 * (i + 1)},{v},{v}\n" for i, v in enumerate(evals))
+    (run / "eval.csv").write_text("frames,return_mean,reached_3cm\n" + rows)
+    (run / "train.csv").write_text(f"frames,fps\n{100 * len(evals)},10\n")
+    if finished:
+        (run / "summary.json").write_text("{}")
+    return run
+
+
+def table_rows(out):
+    import csv
+
+    with (out / "table.csv").open(newline="") as handle:
+        return {(r["exp_name"], r["metric"]): r for r in csv.DictReader(handle) if r["at"] == "final"}
+
+
+def test_the_table_leaves_out_failed_and_early_runs_and_says_which(tmp_path, capsys):
+    from roto_trl import analyse
+
+    hand_run(tmp_path / "runs", "a", 0, [0.2, 0.4])
+    hand_run(tmp_path / "runs", "b", 1, [0.4, 0.6])
+    hand_run(tmp_path / "runs", "stopped", 2, [], finished=False)  # a multirun job stopped at frame 0
+    (tmp_path / "runs" / "stopped" / "eval.csv").write_text(
+        "frames,return_mean,reached_3cm\n"
+    )  # the header only
+    failed = hand_run(tmp_path / "runs", "failed", 3, [0.1], finished=False)
+    (failed / "error.txt").write_text("Traceback ...\nNonFiniteError: the return estimate is NaN or inf\n")
+    hand_run(tmp_path / "runs", "early", 4, [0.9], finished=False)
+    analyse.main(["table", str(tmp_path / "runs" / "*"), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert f"left out {tmp_path / 'runs' / 'stopped'}: it holds no evaluation" in err
+    assert f"left out {failed}: it failed (NonFiniteError: the return estimate is NaN or inf)" in err
+    assert f"left out {tmp_path / 'runs' / 'early'}: it ended early, at 100 of 200 frames" in err
+    row = table_rows(tmp_path / "out")[("find_ppo", "reached_3cm")]
+    assert (row["seeds"], float(row["mean"])) == ("2", pytest.approx(0.5))  # a and b only
+    for command in ("curves", "stability"):  # the header-only eval.csv is a line there too, not a KeyError
+        more = ["--no-physical"] if command == "curves" else []
+        analyse.main([command, str(tmp_path / "runs" / "*"), "--out", str(tmp_path / command), *more])
+        assert "it holds no evaluation" in capsys.readouterr().err
+
+
+def test_a_repeated_seed_is_refused_and_budgets_are_not_mixed(tmp_path, capsys):
+    from roto_trl import analyse
+
+    hand_run(tmp_path / "runs", "short", 0, [0.1], budget=100)
+    hand_run(tmp_path / "runs", "long", 0, [0.2, 0.3, 0.4], budget=300)
+    analyse.main(["table", str(tmp_path / "runs" / "*"), "--out", str(tmp_path / "out")])
+    rows = table_rows(tmp_path / "out")
+    assert rows[("find_ppo [100 frames]", "reached_3cm")]["seeds"] == "1"  # two groups, one seed each
+    assert rows[("find_ppo [300 frames]", "reached_3cm")]["seeds"] == "1"
+    hand_run(tmp_path / "runs", "long-again", 0, [0.5, 0.5, 0.5], budget=300)
+    with pytest.raises(SystemExit, match=r"long and .*long-again are both seed 0 of find_ppo \[300 frames\]"):
+        analyse.main(["table", str(tmp_path / "runs" / "*"), "--out", str(tmp_path / "out")])
+
+
+def test_a_cut_last_line_is_left_out_and_said(tmp_path, capsys):
+    from roto_trl import analyse
+    from roto_trl.trainers.loggers import read_csv
+
+    run = hand_run(tmp_path / "runs", "a", 0, [0.2, 0.4])
+    with (run / "eval.csv").open("a") as handle:
+        handle.write("300,0.9")  # killed while writing the row: no line end, columns missing
+    assert read_csv(run / "eval.csv")["frames"] == [100.0, 200.0]
+    analyse.main(["table", str(run), "--out", str(tmp_path / "out")])
+    assert (
+        "its last line of eval.csv is cut (a kill while writing it) and is left out"
+        in capsys.readouterr().err
+    )
+    row = table_rows(tmp_path / "out")[("find_ppo", "reached_3cm")]
+    assert float(row["mean"]) == pytest.approx(0.4) and int(row["frames"]) == 200
+    analyse.main(["stability", str(run), "--out", str(tmp_path / "stability")])
+    assert (
+        "| reached_3cm | 200 | 0.4 (200) | 0.4 | 1.00 |"
+        in (tmp_path / "stability" / "stability.md").read_text()
+    )

@@ -45,7 +45,11 @@ def write_runs(root: Path) -> None:
     for (exp, seed), columns in EVALS.items():
         run = root / f"{exp}-s{seed}"
         run.mkdir()
-        (run / "config.yaml").write_text(f"exp_name: {exp}\nseed: {seed}\nenv:\n  task: bounce\n")
+        budget = 6 * M if exp == "bounce_fd" else 5 * M
+        config = f"exp_name: {exp}\nseed: {seed}\ntotal_frames: {budget}\nenv:\n  task: bounce\n"
+        (run / "config.yaml").write_text(config)
+        if columns["frames"][-1] >= budget:  # finished: summary.json written
+            (run / "summary.json").write_text("{}")
         with (run / "eval.csv").open("w", newline="") as handle:
             writer = csv.writer(handle)
             writer.writerow(["frames", "return_mean", "return_std", "bounces", "bounces_per_10s"])
@@ -63,7 +67,8 @@ def read(path: Path) -> dict[tuple[str, str, str], dict[str, str]]:
 def test_table_of_two_experiments_with_two_seeds(tmp_path, capsys):
     write_runs(tmp_path / "runs")
     out = tmp_path / "table"
-    analyse.main(["table", str(tmp_path / "runs" / "*"), "--at", "1.5M,5M", "--reference", "--out", str(out)])
+    runs = str(tmp_path / "runs" / "*")
+    analyse.main(["table", runs, "--at", "1.5M,5M", "--reference", "--out", str(out), "--unfinished"])
     rows = read(out / "table.csv")
     # 2 experiments x 3 points (final, 1.5M, 5M) x 2 metrics (return, bounces_per_10s)
     assert len(rows) == 12
@@ -145,8 +150,10 @@ def test_table_rejects_bad_input_with_one_line(tmp_path):
         SystemExit, match=r"^analyse table: --at must be a positive whole number of frames .* got '5Q'"
     ):
         analyse.main(["table", str(tmp_path / "runs" / "*"), "--at", "5Q", "--out", str(tmp_path / "t")])
-    (tmp_path / "runs" / "bounce_fd-s1" / "eval.csv").unlink()
-    with pytest.raises(SystemExit, match=r"bounce_fd-s1 has no eval\.csv"):
+    (tmp_path / "runs" / "bounce_fd-s0" / "eval.csv").unlink()
+    (tmp_path / "runs" / "bounce_ppo-s0" / "eval.csv").unlink()
+    (tmp_path / "runs" / "bounce_ppo-s1" / "eval.csv").unlink()
+    with pytest.raises(SystemExit, match=r"^analyse table: no run left to count"):
         analyse.main(["table", str(tmp_path / "runs" / "*"), "--out", str(tmp_path / "t")])
 
 
@@ -162,7 +169,10 @@ def test_the_best_evaluation_is_the_one_best_pt_holds():
 def test_stability_rows_by_hand(tmp_path, capsys):
     run = tmp_path / "bounce_ppo-s3"
     run.mkdir()
-    (run / "config.yaml").write_text("exp_name: bounce_ppo\nseed: 3\nenv:\n  task: bounce\n")
+    (run / "config.yaml").write_text(
+        "exp_name: bounce_ppo\nseed: 3\ntotal_frames: 200\nenv:\n  task: bounce\n"
+    )
+    (run / "summary.json").write_text("{}")
     (run / "eval.csv").write_text("frames,return_mean,bounces_per_10s\n0,0.1,0\n100,50,10\n200,40,7\n")
     # the per-iteration medians: KL 0.01, 0.03, (empty), 0.02 -> 0.02; clip 0.1, 0.3, 0.2 -> 0.2;
     # training episodes: 2 ended with 1 bounce at 50, none at 100, 1 with 4 at 150, 3 with 8 at 200

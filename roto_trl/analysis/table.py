@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from roto_trl.analysis.runs import Run, by_experiment, run_csv
-from roto_trl.utils.cli import frame_count
+from roto_trl.utils.cli import frame_count, frames_label
 from roto_trl.utils.resources import resource_path
 
 REFERENCE_FILE = "reference/authors_curves.csv"  # under assets/
@@ -31,14 +31,6 @@ def parse_frames(text: str) -> list[int]:
     """``"2M,5M,10M"`` -> ``[2_000_000, 5_000_000, 10_000_000]`` (``utils.cli.frame_count``'s
     forms); a ``ValueError`` naming the bad item otherwise."""
     return [frame_count(item, "--at") for item in text.split(",")]
-
-
-def frames_label(frames: int) -> str:
-    """``2_500_000`` -> ``"2.5M"``, ``400_000`` -> ``"400k"``."""
-    for suffix, unit in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
-        if frames >= unit:
-            return f"{frames / unit:g}{suffix}"
-    return str(frames)
 
 
 def table_metric(column: str) -> str | None:

@@ -3,7 +3,26 @@ its exit status)."""
 
 
 class NonFiniteError(RuntimeError):
-    """A loss, gradient, parameter or return estimate became NaN or inf."""
+    """A loss, gradient, parameter or return estimate became NaN or inf. ``run_dir`` and
+    ``saved_frames`` (what ``latest.pt`` holds, None without a checkpoint) are set by the loop
+    that stopped, for its one-line report."""
+
+    run_dir = None
+    saved_frames: int | None = None
+
+    @property
+    def what_now(self) -> str:
+        """What the run left and what to do, for the report after the error's own line."""
+        if self.saved_frames:
+            return (
+                f"The last good checkpoint ({self.saved_frames:,} frames) is intact; after fixing the cause, "
+                f"continue with: python roto_trl/train.py resume={self.run_dir}"
+            )
+        return "No checkpoint was written before it; fix the cause and start the run again with its command"
+
+
+class DivergedError(NonFiniteError):
+    """The run diverged (``trainers.divergence``) for ``divergence.stop_after`` iterations in a row."""
 
 
 class RunInUse(RuntimeError):
@@ -28,7 +47,7 @@ class TrainingInterrupted(KeyboardInterrupt):
 
 # a single run's exit status and one-line message for each error it reports (``train.py``'s main)
 EXIT_STATUS: dict[type[BaseException], tuple[int, str]] = {
-    NonFiniteError: (3, "stopped: {err}. The last good checkpoint is intact."),
+    NonFiniteError: (3, "stopped: {err}. {err.what_now}"),
     WriteError: (1, "{err}"),
     RunInUse: (2, "{err}"),
     ValueError: (2, "{err}"),

@@ -161,22 +161,21 @@ def truncate_csv(path: Path, frames: int) -> int:
     """Drop the rows of a metrics CSV from the first one past ``frames`` (or the first one
     half-written by a killed process); returns how many.
 
-    Cut in place (``os.truncate``): it needs no free disk space, so it also works on a full disk.
+    Cut in place (``os.truncate``): it needs no free disk space, so it also works on a full disk;
+    read line by line, so a long run's log is never held in memory.
     """
     with Path(path).open("rb") as handle:
-        lines = handle.readlines()
-    if not lines:
-        return 0
-    offset = len(lines[0])
-    for i, line in enumerate(lines[1:], start=1):
-        try:
-            row_frames = float(line.split(b",", 1)[0])
-        except ValueError:
-            row_frames = math.inf
-        if not line.endswith(b"\n") or row_frames > frames:
-            os.truncate(path, offset)
-            return len(lines) - i
-        offset += len(line)
+        offset = len(handle.readline())  # the header
+        for line in handle:
+            try:
+                row_frames = float(line.split(b",", 1)[0])
+            except ValueError:
+                row_frames = math.inf
+            if not line.endswith(b"\n") or row_frames > frames:
+                dropped = 1 + sum(1 for _ in handle)
+                os.truncate(path, offset)
+                return dropped
+            offset += len(line)
     return 0
 
 
@@ -192,9 +191,24 @@ def truncate_csv_logs(run_dir: Path, frames: int) -> dict[str, int]:
 
 
 def read_csv(path: Path) -> dict[str, list[float]]:
-    """Columns of a metrics CSV as lists of floats (empty cells read as NaN)."""
+    """Columns of a metrics CSV as lists of floats (empty cells read as NaN); ``{}`` for a file
+    without rows. A last line cut short (a kill in the middle of writing it: no line end) is left
+    out (``cut_last_line`` tells)."""
     with Path(path).open(newline="") as handle:
-        rows = list(csv.DictReader(handle))
+        text = handle.read()
+    if text and not text.endswith("\n"):
+        text = text[: text.rfind("\n") + 1]
+    rows = list(csv.DictReader(text.splitlines()))
     if not rows:
         return {}
     return {k: [float(r[k]) if r[k] not in ("", None) else math.nan for r in rows] for k in rows[0]}
+
+
+def cut_last_line(path: Path) -> bool:
+    """Whether a metrics CSV ends in a line cut short (no line end: a kill in the middle of it)."""
+    path = Path(path)
+    if not path.is_file() or path.stat().st_size == 0:
+        return False
+    with path.open("rb") as handle:
+        handle.seek(-1, os.SEEK_END)
+        return handle.read(1) != b"\n"

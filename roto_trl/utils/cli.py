@@ -60,6 +60,14 @@ def frame_count(value, key: str) -> int:
     return frames
 
 
+def frames_label(frames: int) -> str:
+    """``2_500_000`` -> ``"2.5M"``, ``400_000`` -> ``"400k"`` (``frame_count`` reads them back)."""
+    for suffix, unit in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
+        if frames >= unit:
+            return f"{frames / unit:g}{suffix}"
+    return str(frames)
+
+
 def is_number(value) -> bool:
     """An int or float from a config (a YAML ``true`` is a bool, not a number)."""
     return isinstance(value, int | float) and not isinstance(value, bool)
