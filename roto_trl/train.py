@@ -33,8 +33,9 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from roto_trl.analysis.runs import run_objective
-from roto_trl.analysis.summary import finish_run
+from roto_trl.analysis.summary import finish_run, repair_end_files
 from roto_trl.config import check_run_name, checked_config, hydra_overrides, plain, settle_for_machine
+from roto_trl.envs.factory import TASKS
 from roto_trl.trainers import builders as build
 from roto_trl.trainers.checkpoint import BEST, LATEST, RunCheckpoints
 from roto_trl.trainers.divergence import DivergenceWatch
@@ -68,8 +69,15 @@ def train(cfg: DictConfig, overrides: Sequence[str] = ()) -> Path:
         if resumed is not None:
             reason = finished_reason(cfg, resumed)
             if reason is not None:
+                headline = TASKS[str(cfg.env.task)].HEADLINE_METRIC
+                repaired = repair_end_files(cfg, run_dir, resumed, headline)
+                done = (
+                    f"wrote the end files it lacked ({', '.join(repaired)})"
+                    if repaired
+                    else "it is unchanged"
+                )
                 print(
-                    f"resume={run_dir}: nothing to do, {reason}; the run is unchanged. Train on with "
+                    f"resume={run_dir}: nothing to train, {reason}; {done}. Train on with "
                     f"resume={run_dir} total_frames=<more> (or a larger time_limit_minutes)"
                 )
                 return run_dir / "summary.json"

@@ -150,3 +150,89 @@ def test_a_cut_last_line_is_left_out_and_said(tmp_path, capsys):
         "| reached_3cm | 200 | 0.4 (200) | 0.4 | 1.00 |"
         in (tmp_path / "stability" / "stability.md").read_text()
     )
+
+
+# ---------------------------------------------------------------------------- runs that stop or break
+
+
+@pytest.fixture
+def finished_run(tmp_path):
+    """A finished smoke run of find_ppo (2 iterations of 8 worlds x 16 steps, best and latest)."""
+    run = tmp_path / "run"
+    train(compose_cfg(["+exp=find_ppo", *TINY, f"run_dir={run}"]))
+    return run
+
+
+def resume(run, frames=384):
+    return train(compose_cfg([f"resume={run}", f"total_frames={frames}"]), [f"total_frames={frames}"])
+
+
+def test_a_config_of_another_task_than_the_checkpoint_is_one_line(finished_run):
+    text = (finished_run / "config.yaml").read_text().replace("task: find", "task: bounce")
+    (finished_run / "config.yaml").write_text(text)
+    with pytest.raises(
+        ValueError,
+        match=r"config\.yaml has env\.task=bounce but .*latest\.pt was trained with env\.task=find",
+    ):
+        resume(finished_run)
+
+
+def test_an_unreadable_config_falls_back_to_the_checkpoints_own(finished_run, capsys):
+    from roto_trl.analysis.checkpoint_eval import evaluate_run
+
+    (finished_run / "config.yaml").write_text("env: [unclosed\n")
+    evaluate_run(finished_run, "latest", episodes=2)
+    assert "cannot be read as YAML" in capsys.readouterr().err
+    resume(finished_run)
+    assert "continuing with the config latest.pt holds" in capsys.readouterr().out
+    assert "task: find" in (finished_run / "config.yaml").read_text()  # written back
+
+
+def test_resume_needs_only_latest_pt_and_can_take_another_checkpoint(finished_run, capsys):
+    from roto_trl.trainers.checkpoint import load_checkpoint
+
+    best = finished_run / "checkpoints" / "best.pt"
+    best.write_bytes(b"damaged")
+    resume(finished_run)
+    assert "best.pt cannot be read; it is replaced by the next best evaluation" in capsys.readouterr().out
+    assert load_checkpoint(finished_run)["frames"] == 384
+    (finished_run / "checkpoints" / "latest.pt").write_bytes(b"damaged")
+    with pytest.raises(ValueError, match=r"latest\.pt cannot be read"):
+        resume(finished_run, 512)
+    resume(best, 512)  # the best checkpoint of the resumed part: on from there
+    assert load_checkpoint(finished_run)["frames"] == 512
+
+
+def test_a_finished_run_missing_its_end_files_gets_them_back_on_resume(finished_run, capsys):
+    for name in ("eval.json", "index.md", "plots/eval.png"):
+        (finished_run / name).unlink()
+    train(compose_cfg([f"resume={finished_run}"]), [f"resume={finished_run}"])
+    assert "wrote the end files it lacked (plots/eval.png, eval.json, index.md)" in capsys.readouterr().out
+    assert all((finished_run / name).is_file() for name in ("eval.json", "index.md", "plots/eval.png"))
+
+
+def test_a_run_stopped_before_its_first_checkpoint_says_how_to_start_it_again(tmp_path):
+    from roto_trl.trainers.errors import NonFiniteError
+
+    run = tmp_path / "run"
+    with pytest.raises(NonFiniteError) as stop:  # the first rollout's returns are inf
+        train(
+            compose_cfg(["+exp=find_ppo", *TINY, f"run_dir={run}", "+env.overrides.reward_scales.dist=1e308"])
+        )
+    assert stop.value.saved_frames is None
+    assert stop.value.what_now.startswith("No checkpoint was written before it")
+    with pytest.raises(
+        FileNotFoundError, match=r"stopped before its first checkpoint.*start it again with its command: "
+    ):
+        train(compose_cfg([f"resume={run}"]), [f"resume={run}"])
+
+
+@pytest.mark.parametrize("override", ["agent.lr=10", "ssl.coeff=1e9"])
+def test_a_diverging_run_warns_then_stops(override, tmp_path, capsys):
+    from roto_trl.trainers.errors import DivergedError
+
+    run = tmp_path / "run"
+    steps = ["total_frames=2048", "divergence.stop_after=3", "checkpoint.interval_minutes=0"]
+    with pytest.raises(DivergedError, match="diverged for 3 iterations in a row"):
+        train(compose_cfg(["+exp=bounce_fd", *TINY, "ssl.seq_len=4", override, *steps, f"run_dir={run}"]))
+    assert "warning: the run diverges at 128 frames" in capsys.readouterr().err

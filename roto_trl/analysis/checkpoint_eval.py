@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -59,9 +60,13 @@ def load_run(run_dir: Path, checkpoint: str = "best") -> tuple[DictConfig, dict[
         raise FileNotFoundError(
             f"run={run_dir}: no config.yaml there; give a run directory that train.py wrote"
         )
-    cfg = run_config(run_dir / "config.yaml")
     path = run_dir / "checkpoints" / NAMED[checkpoint] if checkpoint in NAMED else Path(checkpoint)
     state = load_checkpoint(path)
+    try:
+        cfg = run_config(run_dir / "config.yaml")
+    except ValueError as err:  # the checkpoint holds the run's config too
+        print(f"{err}; using the config {path.name} holds", file=sys.stderr)
+        cfg = state["config"].copy()
     trained = state["config"].env
     if trained.task != cfg.env.task:
         raise ValueError(

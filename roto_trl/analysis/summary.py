@@ -10,6 +10,8 @@ from omegaconf import DictConfig
 
 from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.analysis.plots import plot_run
+from roto_trl.analysis.report import write_index
+from roto_trl.trainers.loggers import read_csv
 from roto_trl.trainers.progress import format_duration
 from roto_trl.trainers.state import TrainState
 
@@ -29,7 +31,7 @@ def headline_line(label: str, result: dict[str, float] | None, headline: str) ->
     return f"{label}: {headline} {result[headline]:.4g}, return {result['return_mean']:.4g}{at}"
 
 
-def finish_run(
+def write_summary(
     cfg: DictConfig,
     run_dir: Path,
     state: TrainState,
@@ -37,9 +39,7 @@ def finish_run(
     wall: float,
     headline: str,
 ) -> Path:
-    """Write ``summary.json``, the plots, ``eval.json`` (the best checkpoint's physical metrics) and
-    ``index.md``; print the best and final evaluations' headline metric, the wall time and where
-    the files are. Returns the path of ``summary.json``."""
+    """Write ``<run_dir>/summary.json``: the run's size, clocks and best and final evaluations."""
     summary = {
         "exp_name": cfg.exp_name,
         "task": str(cfg.env.task),
@@ -57,6 +57,21 @@ def finish_run(
     }
     path = run_dir / "summary.json"
     path.write_text(json.dumps(summary, indent=2))
+    return path
+
+
+def finish_run(
+    cfg: DictConfig,
+    run_dir: Path,
+    state: TrainState,
+    final_eval: dict[str, float] | None,
+    wall: float,
+    headline: str,
+) -> Path:
+    """Write ``summary.json``, the plots, ``eval.json`` (the best checkpoint's physical metrics) and
+    ``index.md``; print the best and final evaluations' headline metric, the wall time and where
+    the files are. Returns the path of ``summary.json``."""
+    path = write_summary(cfg, run_dir, state, final_eval, wall, headline)
     plots = plot_run(run_dir)
     evaluation = evaluate_run(run_dir, "best", episodes=int(cfg.eval.num_envs))
     share = state.eval_clock.share(wall)
@@ -70,3 +85,28 @@ def finish_run(
     print(f"physical metrics of the best checkpoint: {evaluation.resolve()}")
     print(f"report: {(run_dir / 'index.md').resolve()}")
     return path
+
+
+END_FILES = ("summary.json", "plots/eval.png", "plots/train.png", "eval.json", "index.md")
+
+
+def repair_end_files(cfg: DictConfig, run_dir: Path, state: dict, headline: str) -> list[str]:
+    """Write what a finished run lacks of ``END_FILES`` (a kill after training, before they were
+    all written) from its checkpoint ``state`` and logs; returns the names written."""
+    run_dir = Path(run_dir)
+    missing = [name for name in END_FILES if not (run_dir / name).is_file()]
+    if not missing:
+        return []
+    if "summary.json" in missing:
+        progress = TrainState()
+        progress.load_state_dict(state)
+        rows = read_csv(run_dir / "eval.csv") if (run_dir / "eval.csv").is_file() else {}
+        final = {k: v[-1] for k, v in rows.items() if k not in ("frames", "iteration")} if rows else None
+        write_summary(cfg, run_dir, progress, final, float(state["wall_time"]), headline)
+    if any(name.startswith("plots/") for name in missing):
+        plot_run(run_dir)
+    if "eval.json" in missing:
+        evaluate_run(run_dir, "best", episodes=int(cfg.eval.num_envs))  # rewrites index.md too
+    elif "index.md" in missing:
+        write_index(run_dir)
+    return missing

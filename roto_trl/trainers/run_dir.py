@@ -14,6 +14,7 @@ change, and how the directory is brought back to its checkpoint.
 from __future__ import annotations
 
 import os
+import shlex
 import shutil
 from collections.abc import Sequence
 from datetime import datetime
@@ -25,6 +26,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 from roto_trl.config import check_config, plain, run_config
 from roto_trl.trainers.checkpoint import BEST, LATEST, load_checkpoint
 from roto_trl.trainers.loggers import truncate_csv_logs
+from roto_trl.trainers.provenance import read_provenance
 from roto_trl.trainers.run_lock import RunLock
 from roto_trl.trainers.threads import job_threads
 from roto_trl.utils.paths import writable_dir
@@ -72,7 +74,9 @@ def rewind(run_dir: Path, state: dict[str, Any]) -> dict[str, int]:
     Returns the rows dropped per file.
     """
     dropped = truncate_csv_logs(run_dir, int(state["frames"]))
-    reconcile_best(Path(run_dir) / "checkpoints", state)
+    loaded = Path(state["loaded_from"]) if "loaded_from" in state else Path(run_dir) / "checkpoints" / LATEST
+    if loaded.name == LATEST:  # resumed from best.pt: best.pt is that checkpoint already
+        reconcile_best(Path(run_dir) / "checkpoints", state)
     return dropped
 
 
@@ -87,7 +91,11 @@ def reconcile_best(ckpt_dir: Path, latest: dict[str, Any]) -> None:
     """
     path = ckpt_dir / BEST
     best_at = (latest["best_eval_metrics"] or {"frames": None})["frames"]
-    best_frames = int(load_checkpoint(path)["frames"]) if path.is_file() else None
+    try:
+        best_frames = int(load_checkpoint(path)["frames"]) if path.is_file() else None
+    except ValueError as err:  # a damaged best.pt: the resume needs only latest.pt
+        print(f"resume: {err.args[0].split(' (')[0]}; it is replaced by the next best evaluation")
+        best_frames = None
     if best_frames == best_at:
         return
     if best_at == int(latest["frames"]):
@@ -95,6 +103,71 @@ def reconcile_best(ckpt_dir: Path, latest: dict[str, Any]) -> None:
     else:
         path.unlink(missing_ok=True)
         latest["best_eval_metrics"] = None
+
+
+def resume_target(resume: str) -> tuple[Path, Path]:
+    """``(run directory, checkpoint)`` of ``resume=``: a run directory (its ``latest.pt``), or one
+    of its checkpoints (``<run>/checkpoints/best.pt``, to go on from it when ``latest.pt`` is
+    damaged); a ``FileNotFoundError`` for a path that is neither."""
+    path = Path(resume)
+    if path.suffix == ".pt":
+        if path.parent.name != "checkpoints":
+            raise FileNotFoundError(
+                f"resume={path}: give a run directory or a checkpoint in its checkpoints/"
+            )
+        return path.parent.parent, path
+    if not path.is_dir():
+        raise FileNotFoundError(f"resume={path}: no such run directory")
+    return path, path / "checkpoints" / LATEST
+
+
+def no_checkpoint(run_dir: Path, checkpoint: Path) -> str:
+    """Why ``resume=`` finds no checkpoint, and what to do instead."""
+    if checkpoint.name != LATEST:
+        return f"resume: no checkpoint at {checkpoint}"
+    sittings = read_provenance(run_dir)
+    command = (
+        shlex.join(sittings[0]["command"]) if sittings else f"python roto_trl/train.py ... run_dir={run_dir}"
+    )
+    return (
+        f"resume={run_dir}: the run stopped before its first checkpoint, so there is nothing to continue; "
+        f"start it again with its command: {command}"
+    )
+
+
+# the keys that make a checkpoint's networks: config.yaml must agree with the checkpoint on them
+SHAPE_KEYS = (
+    "env.task",
+    "env.obs_keys",
+    "env.last_action",
+    "env.overrides.history",
+    "agent.shared_encoder",
+    "agent.critic_encoder_sizes",
+    "ssl.name",
+)
+
+
+def saved_config(run_dir: Path, state: dict[str, Any], checkpoint: Path) -> DictConfig:
+    """The config a resumed run continues with: its ``config.yaml``, or the checkpoint's own copy
+    where ``config.yaml`` is missing or cannot be read (said in one line; the resume writes it
+    back). A ``config.yaml`` that disagrees with the checkpoint on what its networks are
+    (``SHAPE_KEYS``) is a one-line ``ValueError``."""
+    path = Path(run_dir) / "config.yaml"
+    try:
+        cfg = run_config(path) if path.is_file() else None
+    except ValueError as err:
+        print(f"resume: {err}; continuing with the config {checkpoint.name} holds")
+        cfg = None
+    if cfg is None:
+        return state["config"].copy()
+    for key in SHAPE_KEYS:
+        ours, theirs = OmegaConf.select(cfg, key), OmegaConf.select(state["config"], key)
+        if ours != theirs:
+            raise ValueError(
+                f"{path} has {key}={ours} but {checkpoint} was trained with {key}={theirs}: restore the "
+                "run's own config.yaml (or resume the run that checkpoint belongs to)"
+            )
+    return cfg
 
 
 def save_config(cfg: DictConfig, run_dir: Path) -> None:
@@ -112,14 +185,14 @@ def prepare_run(
     holding the directory is an error before anything in it is touched.
     """
     if cfg.resume:
-        run_dir = Path(str(cfg.resume))
-        saved = run_dir / "config.yaml"
-        if not saved.is_file():
-            raise FileNotFoundError(f"resume={run_dir}: no config.yaml there; give a run directory")
-        new_cfg = resume_config(run_config(saved), cfg, overrides)
+        run_dir, checkpoint = resume_target(str(cfg.resume))
         lock = RunLock(writable_dir(run_dir, "resume")).acquire()
         try:
-            state = load_checkpoint(run_dir / "checkpoints" / LATEST)
+            if not checkpoint.is_file():
+                raise FileNotFoundError(no_checkpoint(run_dir, checkpoint))
+            state = load_checkpoint(checkpoint)
+            state["loaded_from"] = str(checkpoint)  # what rewind() reconciles best.pt with
+            new_cfg = resume_config(saved_config(run_dir, state, checkpoint), cfg, overrides)
             check_config(new_cfg)
         except BaseException:
             lock.release()
