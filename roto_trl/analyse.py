@@ -249,12 +249,13 @@ def contact_map(actual: np.ndarray, predicted: np.ndarray, first: int, title: st
 
 
 def confusion_over_training(run: Run, out: Path) -> list[Path]:
-    """TPR, FPR, FNR, TNR, accuracy and precision per horizon against frames, from ``aux.csv``."""
-    path = run.path / "aux.csv"
-    if not path.is_file():
-        print(f"{run.path}: no aux.csv, no confusion metrics over training")
+    """TPR, FPR, FNR, TNR, accuracy and precision per horizon against frames, from the means per
+    iteration that ``train.csv`` holds (``aux/<name>``)."""
+    train = read_csv(run.path / "train.csv") if (run.path / "train.csv").is_file() else {}
+    aux = {k.removeprefix("aux/"): v for k, v in train.items() if k.startswith("aux/") or k == "frames"}
+    if not any(k.startswith(CONFUSION) for k in aux):
+        print(f"{run.path}: its train.csv holds no confusion metrics of the auxiliary objective")
         return []
-    aux = read_csv(path)
     frames = np.asarray(aux["frames"])
     steps = sorted({f for f in frames})
     fig, axes = plt.subplots(1, len(CONFUSION), figsize=(3.2 * len(CONFUSION), 3.2))
@@ -279,11 +280,13 @@ def confusion_over_training(run: Run, out: Path) -> list[Path]:
 
 
 def cmd_aux_memory(runs: list[Run], out: Path, args) -> list[Path]:
-    """The unscaled auxiliary loss of every minibatch over training, one line per run."""
+    """The unscaled auxiliary loss of every minibatch over training, one line per run (from
+    ``aux.csv``: runs trained with ``logger.aux_minibatches=true``)."""
     fig, ax = plt.subplots(figsize=(8, 4))
     rows = []
     for run in runs:
-        aux = run_csv(run, "aux.csv", "aux-memory needs runs with an SSL objective")
+        needs = "aux-memory needs runs with an SSL objective trained with logger.aux_minibatches=true"
+        aux = run_csv(run, "aux.csv", needs)
         terms = [k for k in aux if k.startswith("loss_")]
         loss = np.sum([np.asarray(aux[k]) for k in terms], axis=0)
         memory = run.config["ssl"]["memory_rollouts"]

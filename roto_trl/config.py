@@ -163,6 +163,7 @@ class CheckpointConfig:
 class LoggerConfig:
     backend: LoggerBackend = LoggerBackend.wandb
     project: str = "roto-trl"
+    aux_minibatches: bool = False
 
 
 @dataclass

@@ -39,7 +39,7 @@ from roto_trl.envs.factory import TASKS
 from roto_trl.trainers import builders as build
 from roto_trl.trainers.checkpoint import BEST, LATEST, RunCheckpoints
 from roto_trl.trainers.divergence import DivergenceWatch
-from roto_trl.trainers.errors import EXIT_STATUS, NonFiniteError, TrainingInterrupted
+from roto_trl.trainers.errors import NonFiniteError, TrainingInterrupted, exit_with_report, report_failed_job
 from roto_trl.trainers.evaluation import evaluate, selection_key
 from roto_trl.trainers.interrupts import StopRequests
 from roto_trl.trainers.loggers import MetricLogger
@@ -178,7 +178,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
                 "time/eval_share": state.eval_clock.share(wall),  # evaluation's part of the wall time so far
             }
             logger.log("train", stats, state.frames)
-            for row in aux_rows:  # the auxiliary loss of every minibatch, CSV only
+            for row in aux_rows if cfg.logger.aux_minibatches else ():  # every auxiliary step, on request
                 logger.log("aux", {"iteration": state.iteration, **row}, state.frames, csv_only=True)
             warning = divergence.check(stats, state.frames)  # a DivergedError after stop_after in a row
             if warning:
@@ -249,28 +249,12 @@ def main(cfg: DictConfig) -> float:
         overrides = []  # a requeued job: the command of its first start, whose config is saved
     try:
         summary = train(cfg, overrides)
-    except TrainingInterrupted as err:
-        if in_sweep:
-            raise
-        resume = f"continue with: python roto_trl/train.py resume={err.run_dir}"
-        what = (
-            f"stopped at {err.frames:,} frames; {resume}"
-            if err.frames
-            else "stopped before the first checkpoint"
-        )
-        print(f"train: {what}", file=sys.stderr)
-        sys.exit(128 + err.signum)
-    except KeyboardInterrupt:  # before the loop's handlers were installed, or after the loop
-        if in_sweep:
-            raise
-        print("train: interrupted", file=sys.stderr)
-        sys.exit(130)
-    except tuple(EXIT_STATUS) as err:
-        if in_sweep:
-            raise
-        status, message = next(v for k, v in EXIT_STATUS.items() if isinstance(err, k))
-        print(f"train: {message.format(err=err)}", file=sys.stderr)
-        sys.exit(status)
+    except BaseException as err:
+        if not in_sweep:
+            exit_with_report(err)  # one line and the exit status; a bug keeps its traceback
+        if not isinstance(err, KeyboardInterrupt):
+            report_failed_job(cfg, err)  # error.txt in its run directory, and one line of its own
+        raise
     return run_objective(summary.parent, OmegaConf.select(hydra_cfg, "sweeper.objective", default="headline"))
 
 

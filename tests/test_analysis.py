@@ -84,7 +84,8 @@ def runs(tmp_path_factory):
         ("ppo0", "bounce_ppo", 0),
     ]
     for name, exp, seed in bounce:
-        short = ["ssl.seq_len=4"] if exp == "bounce_tfd" else []  # TINY's short episodes hold runs of 4
+        # TINY's short episodes hold runs of 4; aux-memory reads every auxiliary step (aux.csv)
+        short = ["ssl.seq_len=4", "logger.aux_minibatches=true"] if exp == "bounce_tfd" else []
         train(
             compose_cfg(
                 [f"+exp={exp}", *TINY, *short, f"seed={seed}", "total_frames=512", f"run_dir={root / name}"]

@@ -236,3 +236,44 @@ def test_a_diverging_run_warns_then_stops(override, tmp_path, capsys):
     with pytest.raises(DivergedError, match="diverged for 3 iterations in a row"):
         train(compose_cfg(["+exp=bounce_fd", *TINY, "ssl.seq_len=4", override, *steps, f"run_dir={run}"]))
     assert "warning: the run diverges at 128 frames" in capsys.readouterr().err
+
+
+def test_the_logs_grow_by_a_row_per_iteration_and_resume_cuts_them_line_by_line(tmp_path):
+    from roto_trl.trainers.loggers import truncate_csv
+
+    run = tmp_path / "run"
+    train(compose_cfg(["+exp=bounce_fd", *TINY, "ssl.seq_len=4", f"run_dir={run}"]))
+    assert not (run / "aux.csv").exists()  # every auxiliary step only with logger.aux_minibatches=true
+    path = tmp_path / "big.csv"
+    with path.open("w") as handle:
+        handle.write("frames,x\n" + "".join(f"{i},{i}\n" for i in range(1, 200_001)) + "200001,9")
+    assert truncate_csv(path, 100_000) == 100_001  # 100,000 whole rows past the cut and the cut one
+    assert path.read_text().splitlines()[-1] == "100000,100000"
+
+
+def test_a_process_told_to_stop_with_its_parent_gets_sigterm_when_the_parent_dies(tmp_path):
+    """The watchdog of a multirun worker: the parent exits at once, the child is SIGTERMed."""
+    import subprocess
+    import sys
+    import time
+
+    marker, ready = tmp_path / "stopped", tmp_path / "ready"
+    child = (
+        "import signal, sys, time, pathlib\n"
+        "from roto_trl.trainers.interrupts import stop_with_parent\n"
+        f"stop = lambda *_: (pathlib.Path({str(marker)!r}).write_text('x'), sys.exit(0))\n"
+        "signal.signal(signal.SIGTERM, stop)\n"
+        "stop_with_parent(0.05)\n"
+        f"pathlib.Path({str(ready)!r}).write_text('x')\n"
+        "time.sleep(30)\n"
+    )
+    parent = (
+        "import pathlib, subprocess, sys, time\n"
+        f"subprocess.Popen([sys.executable, '-c', {child!r}])\n"
+        f"while not pathlib.Path({str(ready)!r}).exists(): time.sleep(0.05)\n"  # then exit, alive child
+    )
+    subprocess.run([sys.executable, "-c", parent], check=True, timeout=30)  # exits, leaving the child
+    deadline = time.time() + 20
+    while time.time() < deadline and not marker.exists():
+        time.sleep(0.1)
+    assert marker.exists()

@@ -172,7 +172,8 @@ def test_resume_leaves_a_finished_run_alone_and_takes_only_a_larger_budget(tmp_p
 
     before = stamps()
     train(compose_cfg([f"resume={run}"]), [f"resume={run}"])
-    assert "nothing to train, it is finished at 256 frames (total_frames=256); it is unchanged" in capsys.readouterr().out
+    said = "nothing to train, it is finished at 256 frames (total_frames=256); it is unchanged"
+    assert said in capsys.readouterr().out
     extra = ["total_frames=512", "agent.lr=5e-4"]
     with pytest.raises(ValueError, match=f"only {', '.join(RESUMABLE)} may change on resume, not agent.lr"):
         train(compose_cfg([f"resume={run}", *extra]), [f"resume={run}", *extra])

@@ -326,3 +326,77 @@ def test_sweep_runs_two_trials_at_once_through_joblib(tmp_path):
     end = [(run / "summary.json").stat().st_mtime for run in runs]
     assert start[0] < end[1] and start[1] < end[0]
     assert start[2] > max(end[:2])  # the third trial waited for a free slot: the target is 3
+
+
+# ---------------------------------------------------------------------------- faults of sweeps and multiruns
+
+
+@pytest.mark.slow  # end to end: Hydra's sweeper
+def test_a_sweep_directory_it_cannot_write_is_one_line():
+    done = sweep("hydra.sweep.dir=/proc/roto-sweep")
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert "sweep: hydra.sweep.dir=/proc/roto-sweep is not writable" in done.stderr
+
+
+@pytest.mark.slow  # end to end: a sweep process stopped by Ctrl-C
+def test_ctrl_c_of_a_sweep_exits_130_with_one_line(tmp_path):
+    args = [*TINY_SWEEP, f"hydra.sweep.dir={tmp_path}", "total_frames=100000"]
+    proc = subprocess.Popen([*TRAIN, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    started = tmp_path / "trials" / "0" / "train.csv"
+    deadline = time.time() + 240
+    while time.time() < deadline and not started.exists():
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=240)
+    assert proc.returncode == 130 and "Traceback" not in err, err[-2000:]
+    assert "sweep: interrupted; the trials that were running are marked FAIL (interrupted)" in err
+    assert [t.state for t in load_study(tmp_path).get_trials()] == [TrialState.FAIL]
+
+
+@pytest.mark.slow  # end to end: two jobs through the joblib launcher
+def test_every_failed_job_of_a_multirun_is_reported_with_its_error_file(tmp_path):
+    nan = "+env.overrides.reward_scales.dist=1e308"  # the first rollout's returns are inf
+    args = [
+        "-m",
+        "+exp=find_ppo",
+        *TINY,
+        "seed=0,1",
+        nan,
+        "hydra/launcher=joblib",
+        f"hydra.sweep.dir={tmp_path}",
+    ]
+    done = subprocess.run([*TRAIN, *args], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 1
+    failed = sorted(tmp_path.glob("*-find_ppo-s*"))
+    assert len(failed) == 2
+    for run in failed:
+        assert "NonFiniteError" in (run / "error.txt").read_text()
+        assert f"train: the job in {run} failed: NonFiniteError" in done.stderr
+
+
+def test_a_trial_whose_run_finished_is_kept_when_its_worker_died(tmp_path):
+    """A RUNNING trial of a dead worker: COMPLETE with its run's objective when the run finished
+    (summary.json), FAIL when it had not."""
+    from hydra_plugins.roto_optuna_sweeper._study import StudyLoop
+
+    study = optuna.create_study(direction="maximize", storage=f"sqlite:///{tmp_path / 'study.db'}")
+    runs = {}
+    for number, finished in ((0, True), (1, False)):
+        trial = study.ask()
+        run = tmp_path / "trials" / str(number)
+        run.mkdir(parents=True)
+        (run / "config.yaml").write_text("exp_name: find_ppo\nseed: 0\nenv:\n  task: find\n")
+        (run / "eval.csv").write_text("frames,return_mean,reached_3cm\n100,5,0.25\n200,6,0.75\n")
+        if finished:
+            (run / "summary.json").write_text("{}")
+        trial.set_user_attr("run_dir", str(run))
+        trial.set_user_attr("worker", f"{socket.gethostname()}:999999999")  # no such process
+        runs[number] = trial
+    loop = StudyLoop.__new__(StudyLoop)  # the one method, without a Hydra sweeper around it
+    loop.study, loop.storage = study, study._storage
+    loop.study_id = study._study_id
+    loop.conf = type("Conf", (), {"objective": "headline"})()
+    loop.fail_dead_trials()
+    done, lost = study.get_trials()
+    assert (done.state, done.value) == (TrialState.COMPLETE, 0.5)  # reached_3cm over the last evaluations
+    assert lost.state == TrialState.FAIL and "died" in lost.user_attrs["fail_reason"]

@@ -32,7 +32,7 @@ EXPS = [f"{task}_{variant}" for task in ("find", "bounce", "baoding") for varian
 # every experiment is checked without training
 PATHS = {
     "find_tr": [],
-    "bounce_fr": [],
+    "bounce_fr": ["logger.aux_minibatches=true"],
     "baoding_tfd": ["ssl.seq_len=4"],
     "bounce_fd_mem": [
         "ssl.seq_len=4",
@@ -127,10 +127,12 @@ def test_a_smoke_run_of_each_code_path_writes_its_run_directory(exp, tmp_path):
     cfg = OmegaConf.load(run / "config.yaml")
     if cfg.ssl.name == "none":
         assert not (run / "aux.csv").exists() and "aux" not in state
-    else:  # one auxiliary row per minibatch: 4 iterations x 2 epochs x 2 minibatches
+    elif "logger.aux_minibatches=true" in PATHS[exp]:  # one row per minibatch: 4 iterations x 2 x 2
         aux = rows(run / "aux.csv")
         assert len(aux) == 16 and all(math.isfinite(float(r["aux_loss"])) for r in aux)
         assert "optimizer" in state["aux"]
+    else:  # the auxiliary numbers' means per iteration only: a few columns of train.csv
+        assert not (run / "aux.csv").exists() and "aux/aux_loss" in rows(run / "train.csv")[0]
 
 
 def test_same_seed_gives_identical_metrics(tmp_path):

@@ -53,8 +53,10 @@ from hydra.plugins.sweeper import Sweeper
 from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
 from optuna.trial import Trial, TrialState
 
+from roto_trl.analysis.runs import run_objective
 from roto_trl.sweeps.report import write_summary
 from roto_trl.sweeps.storage import TRIAL_FILE, open_storage, record_study, redact, storage_url
+from roto_trl.utils.paths import writable_dir
 
 TAGS = {"log", "int"}  # tag(log, ...): log scale; tag(int, interval(...)): integers
 RESERVED = ("run_dir", "resume")  # set by the sweeper for each trial
@@ -223,7 +225,7 @@ class StudyLoop:
         probe = [f"{key}={render(_first_value(dist))}" for key, dist in self.space.values()]
         sweeper.validate_batch_is_legal([[*self.fixed, *probe, f"run_dir={render(str(self.sweep_dir))}"]])
 
-        self.sweep_dir.mkdir(parents=True, exist_ok=True)
+        writable_dir(self.sweep_dir, "hydra.sweep.dir")  # a one-line error before the study opens
         self.url = storage_url(conf.storage, self.sweep_dir)
         self.storage = open_storage(
             self.url, heartbeat_interval=conf.heartbeat_interval, grace_period=conf.grace_period
@@ -339,15 +341,31 @@ class StudyLoop:
             if worker_host != host or not pid.isdigit() or _alive(int(pid)):
                 continue
             trial_id = self.storage.get_trial_id_from_study_id_trial_number(self.study_id, trial.number)
+            value = finished_value(Path(trial.user_attrs.get("run_dir", "")), self.conf.objective)
             try:
-                self.storage.set_trial_user_attr(trial_id, "fail_reason", f"its worker {worker} died")
-                self.storage.set_trial_state_values(trial_id, TrialState.FAIL)
+                if value is not None:  # its run finished before the worker died: keep its result
+                    self.storage.set_trial_state_values(trial_id, TrialState.COMPLETE, [value])
+                else:
+                    self.storage.set_trial_user_attr(trial_id, "fail_reason", f"its worker {worker} died")
+                    self.storage.set_trial_state_values(trial_id, TrialState.FAIL)
             except optuna.exceptions.UpdateFinishedTrialError:
                 continue  # another worker marked it first
+            what = f"COMPLETE (its run had finished: {value:.4g})" if value is not None else "FAIL"
             print(
-                f"sweep: trial {trial.number} was left RUNNING by dead worker {worker}: marked FAIL",
+                f"sweep: trial {trial.number} was left RUNNING by dead worker {worker}: marked {what}",
                 flush=True,
             )
+
+
+def finished_value(run_dir: Path, objective: str) -> float | None:
+    """The objective of a trial whose run finished (``summary.json`` written), or None."""
+    if not (run_dir / "summary.json").is_file():
+        return None
+    try:
+        value = run_objective(run_dir, objective)
+    except ValueError:
+        return None
+    return value if math.isfinite(value) else None
 
 
 def run_sweep(sweeper: Sweeper, arguments: list[str]) -> None:

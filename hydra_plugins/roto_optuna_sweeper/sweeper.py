@@ -52,8 +52,11 @@ class OptunaSweeper(Sweeper):
         )
 
     def sweep(self, arguments: list[str]) -> None:
-        """Run the study; bad settings (exit status 2) and a stop after ``max_failures`` (1) end
-        the sweep with one line instead of a traceback."""
+        """Run the study; bad settings or a sweep directory it cannot write (exit status 2), a
+        stop after ``max_failures`` (1) and Ctrl-C or SIGTERM (130) end the sweep with one line
+        instead of a traceback."""
+        import optuna
+
         from hydra_plugins.roto_optuna_sweeper._study import SweepStopped, run_sweep
 
         try:
@@ -61,6 +64,23 @@ class OptunaSweeper(Sweeper):
         except ValueError as err:
             print(f"sweep: {err}", file=sys.stderr)
             sys.exit(2)
+        except OSError as err:
+            print(
+                f"sweep: cannot write {err.filename or 'the sweep directory'}: {err.strerror}",
+                file=sys.stderr,
+            )
+            sys.exit(2)
+        except optuna.exceptions.StorageInternalError as err:
+            cause = str(err.__cause__ or err).strip().splitlines()[0][:300]
+            print(f"sweep: the study's storage failed: {cause}", file=sys.stderr)
+            sys.exit(2)
         except SweepStopped as err:
             print(f"sweep: stopped: {err}", file=sys.stderr)
             sys.exit(1)
+        except KeyboardInterrupt:
+            print(
+                "sweep: interrupted; the trials that were running are marked FAIL (interrupted). "
+                "Run the same command again to go on",
+                file=sys.stderr,
+            )
+            sys.exit(130)

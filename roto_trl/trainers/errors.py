@@ -1,5 +1,9 @@
-"""Errors a training run reports in one line instead of a traceback (``train.py`` maps each to
-its exit status)."""
+"""Errors a training run reports in one line instead of a traceback, with the exit status of each
+(``exit_with_report``), and the report of a multirun job that failed (``report_failed_job``)."""
+
+import sys
+import traceback
+from pathlib import Path
 
 
 class NonFiniteError(RuntimeError):
@@ -54,3 +58,41 @@ EXIT_STATUS: dict[type[BaseException], tuple[int, str]] = {
     FileNotFoundError: (2, "{err}"),
     FileExistsError: (2, "{err}"),
 }
+
+
+def exit_with_report(err: BaseException) -> None:
+    """End a single run stopped by ``err`` with its one-line report on stderr and its exit status;
+    an error that is not one of ours is raised again, traceback and all (a bug to report)."""
+    if isinstance(err, TrainingInterrupted):
+        resume = f"continue with: python roto_trl/train.py resume={err.run_dir}"
+        what = (
+            f"stopped at {err.frames:,} frames; {resume}"
+            if err.frames
+            else "stopped before the first checkpoint"
+        )
+        print(f"train: {what}", file=sys.stderr)
+        sys.exit(128 + err.signum)
+    if isinstance(err, KeyboardInterrupt):  # before the loop's handlers were installed, or after it
+        print("train: interrupted", file=sys.stderr)
+        sys.exit(130)
+    for kind, (status, message) in EXIT_STATUS.items():
+        if isinstance(err, kind):
+            print(f"train: {message.format(err=err)}", file=sys.stderr)
+            sys.exit(status)
+    raise err
+
+
+def report_failed_job(cfg, err: BaseException) -> None:
+    """A multirun job failed: its traceback to ``<run_dir>/error.txt`` and one line naming the job,
+    so that every failed job is reported (Hydra's own traceback names only the first)."""
+    run_dir = Path(str(cfg.run_dir or cfg.resume or "."))
+    where = ""
+    if run_dir.is_dir():
+        (run_dir / "error.txt").write_text("".join(traceback.format_exception(err)))
+        where = f" (traceback in {run_dir / 'error.txt'})"
+    first = (str(err).strip().splitlines() or [""])[0][:300]
+    print(
+        f"train: the job in {run_dir} failed: {type(err).__name__}: {first}{where}",
+        file=sys.stderr,
+        flush=True,
+    )

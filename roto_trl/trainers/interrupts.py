@@ -7,9 +7,11 @@ iteration at once (``KeyboardInterrupt``); ``latest.pt`` then holds the last che
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
+import time
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -40,3 +42,24 @@ class StopRequests:
     def __exit__(self, *exc) -> None:
         for signum, handler in self._previous.items():
             signal.signal(signum, handler)
+
+
+_WATCHING: set[int] = set()  # the processes whose parent is watched (one thread each)
+
+
+def stop_with_parent(poll_seconds: float = 2.0) -> None:
+    """SIGTERM this process when its parent dies (a multirun worker whose sweep was killed): a
+    job in training then stops as on SIGTERM, writing ``latest.pt``; an idle worker ends. A
+    daemon thread, started once per process."""
+    pid = os.getpid()
+    if pid in _WATCHING:
+        return
+    _WATCHING.add(pid)
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_seconds)
+        os.kill(pid, signal.SIGTERM)
+
+    threading.Thread(target=watch, name="stop-with-parent", daemon=True).start()

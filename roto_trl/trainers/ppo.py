@@ -186,7 +186,7 @@ class PPOUpdate:
                 diag["kl_k3"] = kl_k3(diag["kl_approx"], diag["mean_ratio"])
                 if aux_stats is not None:
                     aux_rows.append(aux_stats)
-                    diag.update({f"aux/{k}": v for k, v in aux_stats.items() if "loss" in k})
+                    diag.update({f"aux/{k}": v for k, v in aux_stats.items()})
                 rows.append(diag)
                 epoch_kl.append(diag["kl_k3"])
             if self.lr_schedule is not None:

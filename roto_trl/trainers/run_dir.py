@@ -25,6 +25,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from roto_trl.config import check_config, plain, run_config
 from roto_trl.trainers.checkpoint import BEST, LATEST, load_checkpoint
+from roto_trl.trainers.interrupts import stop_with_parent
 from roto_trl.trainers.loggers import truncate_csv_logs
 from roto_trl.trainers.provenance import read_provenance
 from roto_trl.trainers.run_lock import RunLock
@@ -226,6 +227,8 @@ def place_multirun_job(cfg: DictConfig, hydra_cfg: DictConfig) -> bool:
         True when the job continues its directory's checkpoint (``cfg.resume`` set).
     """
     share = job_threads(hydra_cfg.launcher, len(os.sched_getaffinity(0)))
+    if "joblib" in str(OmegaConf.select(hydra_cfg, "launcher._target_", default="")):
+        stop_with_parent()  # a worker of a killed sweep stops instead of training on alone
     with open_dict(cfg):
         if share is not None:
             cfg.torch_threads = cfg.torch_threads or share
