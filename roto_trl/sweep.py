@@ -28,7 +28,9 @@ from roto_trl.sweeps.storage import load_study
 from roto_trl.utils.resources import TRAIN_SCRIPT, resource_dir
 
 
-def main(argv: list[str] | None = None) -> int:
+def parse_args(argv: list[str]) -> tuple[argparse.Namespace, list[str]]:
+    """The command, its options and its trailing ``key=value`` overrides; argparse's one-line
+    error (exit status 2) for anything else."""
     parser = argparse.ArgumentParser(prog="python -m roto_trl.sweep", description=__doc__.split("\n")[0])
     commands = parser.add_subparsers(dest="command", required=True)
     for command, text in (
@@ -59,6 +61,11 @@ def main(argv: list[str] | None = None) -> int:
     unknown = [a for a in overrides if args.command != "best" or "=" not in a or a.startswith("-")]
     if unknown:
         parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+    return args, overrides
+
+
+def main(argv: list[str] | None = None) -> int:
+    args, overrides = parse_args(sys.argv[1:] if argv is None else argv)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     try:
         study = load_study(args.sweep_dir, args.storage, args.study)
