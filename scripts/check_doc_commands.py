@@ -175,8 +175,6 @@ def run_readme(commands: list[str]) -> list[str]:
                     exp = next((e for e in made if f"/{e}/" in arg or f"runs/{e}" in arg), None)
                     if "<" in arg and exp:
                         argv[i] = re.sub(r"runs/\w+/<[^>]+>", str(made[exp]), arg)
-                    elif "runs/" in arg and "*" in arg:
-                        argv[i] = str(runs / "*" / "*")
                 if program.endswith("train.py"):  # resume=: the first run made, a few frames more
                     argv = [f"resume={next(iter(made.values()))}", "total_frames=256"]
                 if program == "roto_trl.sweep":

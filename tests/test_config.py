@@ -10,6 +10,7 @@ from helpers import compose_cfg
 from omegaconf import OmegaConf
 
 from roto_trl.analysis.checkpoint_eval import evaluate_run
+from roto_trl.analysis.runs import settings
 from roto_trl.config import (
     RETIRED_TAG,
     AgentConfig,
@@ -143,3 +144,21 @@ def test_frame_counts_are_written_as_a_user_would_and_the_cpu_profile_sets_each_
     )
     assert {budgets[e] for e in EXPS if e.startswith("baoding")} == {10_000_000}
     assert compose_cfg(["+exp=bounce_fd", "+profile=cpu", "total_frames=3M"]).total_frames == 3_000_000
+
+
+def test_every_variant_of_a_task_gets_one_recipe():
+    """Under +profile=cpu the variants of a task differ only in what Table A4 tunes per variant
+    (R, le, lr, c_ent, the SSL objective and its values) and in what they observe."""
+    per_variant = ("agent.rollout_len", "agent.epochs", "agent.lr", "agent.entropy_coeff")
+    identity = ("exp_name", "env.obs_keys", "env.last_action")
+    for task in ("find", "bounce", "baoding"):
+        recipes = {}
+        for exp in (e for e in EXPS if e.startswith(task)):
+            flat = settings(plain(typed_config(compose_train([f"+exp={exp}", "+profile=cpu"]))))
+            recipes[exp] = {
+                k: v
+                for k, v in flat.items()
+                if k not in (*per_variant, *identity) and not k.startswith("ssl.")
+            }
+        first = next(iter(recipes.values()))
+        assert all(recipe == first for recipe in recipes.values()), task

@@ -120,10 +120,9 @@ def find_runs(patterns: list[str]) -> list[Run]:
     """
     paths: list[Path] = []
     for pattern in patterns:
-        # a glob matches run directories only (a sweep directory also holds multirun.yaml)
-        matched = sorted(Path(p) for p in glob.glob(pattern) if Path(p).is_dir()) or (
-            [Path(pattern)] if Path(pattern).exists() else []
-        )
+        # a glob matches run directories only: not a sweep's directory, not analyse.py's output
+        globbed = [Path(p) for p in glob.glob(pattern) if (Path(p) / "config.yaml").is_file()]
+        matched = sorted(globbed) or ([Path(pattern)] if Path(pattern).exists() else [])
         if not matched:
             raise ValueError(f"no run directories match {pattern!r}; give run directories or a quoted glob")
         paths += [p for p in matched if p not in paths]
