@@ -340,6 +340,19 @@ def cmd_compare(runs: list[Run], out: Path, args) -> list[Path]:
     return [out / "compare.md", write_csv(out / "compare.csv", header, csv_rows)]
 
 
+def cmd_study(runs: list[Run], out: Path, args) -> list[Path]:
+    """A task's study: final policies scored alike, IQM and probability of improvement with
+    intervals (rliable), performance profiles, curves beside the authors', the paper's claims."""
+    from roto_trl.analysis.study import score_run, write_study
+
+    task = one_task(runs, "study")
+    if args.score:
+        for run in runs:
+            for path in score_run(run.path, args.episodes, mi=not args.no_mi):
+                print(f"scored: {path}", flush=True)
+    return write_study(runs, task, out)
+
+
 COMMANDS = {
     "curves": cmd_curves,
     "mi": cmd_mi,
@@ -349,10 +362,11 @@ COMMANDS = {
     "table": cmd_table,
     "stability": cmd_stability,
     "compare": cmd_compare,
+    "study": cmd_study,
 }
 
 
-COUNTING = ("curves", "table", "stability", "compare")  # the commands that count runs over seeds
+COUNTING = ("curves", "table", "stability", "compare", "study")  # the commands that count runs over seeds
 
 
 def positive_int(text: str) -> int:
@@ -421,6 +435,10 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                 required=True,
                 help="the base runs (directories or quoted globs), same seeds",
             )
+        if name == "study":
+            p.add_argument("--score", action="store_true", help="first score the runs not yet scored")
+            p.add_argument("--episodes", type=positive_int, default=1000, help="scoring episodes per run")
+            p.add_argument("--no-mi", action="store_true", help="score without the mutual information")
         if name == "stability":
             p.add_argument(
                 "--at", default="0.3M,0.5M,1M,1.5M,2M", help="frame marks of the training-episode column"

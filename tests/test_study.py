@@ -1,0 +1,66 @@
+"""The study: the field's statistics by hand, the claims' verdicts, and a smoke-size study that runs,
+skips what is finished and is analysed into tables and figures."""
+
+import subprocess
+
+import numpy as np
+import pytest
+from helpers import TRAIN
+
+from roto_trl.analysis.study import improvement, iqm_interval, oriented, verdict
+
+
+def test_iqm_and_probability_of_improvement_by_hand():
+    # the IQM of 1..8 is the mean of the middle half, 3..6: 4.5
+    point, low, high = iqm_interval(np.arange(1.0, 9.0), reps=500)
+    assert point == pytest.approx(4.5) and low <= point <= high
+    # every run of X above every run of Y: P = 1 with no room either way; equal runs: 0.5
+    assert improvement(np.array([3.0, 4.0, 5.0]), np.array([0.0, 1.0, 2.0]), reps=500) == (1.0, 1.0, 1.0)
+    assert improvement(np.ones(4), np.ones(4), reps=500) == (0.5, 0.5, 0.5)
+    # X beats Y in 6 of the 9 pairs and ties in 2 (each counts half): (6 + 1) / 9
+    p, _, _ = improvement(np.array([1.0, 2.0, 3.0]), np.array([1.0, 2.0, 0.0]), reps=500)
+    assert p == pytest.approx(7 / 9)
+    assert list(oriented(np.array([1.0, 2.0]), "find_time_1cm")) == [-1.0, -2.0]  # sooner is better
+
+
+def test_verdicts_from_the_interval():
+    assert verdict(0.6, 0.9) == "supported" and verdict(0.1, 0.4) == "contradicted"
+    assert verdict(0.4, 0.7) == "not resolved"
+    assert verdict(0.4, 0.7, same=True) == "not resolved (no difference found)"
+    assert verdict(0.55, 0.9, same=True) == "contradicted"
+
+
+@pytest.mark.slow  # end to end: a multirun of four runs, run twice, then scored and analysed
+def test_a_study_runs_skips_what_is_finished_and_is_analysed(tmp_path):
+    study = [
+        "+study=find",
+        'hydra.sweeper.params.exp="find_ppo,find_fd"',
+        'hydra.sweeper.params.seed="100,101"',
+        f"hydra.sweep.dir={tmp_path / 'study'}",
+        *("env.num_envs=4", "total_frames=128", "agent.minibatches=2", "agent.epochs=1"),
+        *("eval.num_envs=2", "eval.every_frames=64", "+env.overrides.episode_steps=20"),
+    ]
+    first = subprocess.run([*TRAIN, *study], capture_output=True, text=True, timeout=600)
+    assert first.returncode == 0, first.stderr[-2000:]
+    runs = sorted(p.name for p in (tmp_path / "study").iterdir() if p.is_dir())
+    assert runs == ["find_fd-s100", "find_fd-s101", "find_ppo-s100", "find_ppo-s101"]
+    again = subprocess.run([*TRAIN, *study], capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0 and again.stdout.count("nothing to train, it is finished") == 4
+    out = tmp_path / "out"
+    analyse = [
+        *TRAIN[:1],
+        str(TRAIN[1]).replace("train.py", "analyse.py"),
+        "study",
+        str(tmp_path / "study" / "*"),
+    ]
+    done = subprocess.run(
+        [*analyse, "--score", "--episodes", "4", "--out", str(out)], capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    markdown = (out / "study.md").read_text()
+    assert (
+        "| fd | ours | 2 |" in markdown
+        and "| FD outperforms RL-only (Sec. 5, RL+SSL) | fd vs ppo" in markdown
+    )
+    assert all((tmp_path / "study" / r / "score-gaussian_mean.json").is_file() for r in runs)
+    assert (out / "curves.png").is_file() and (out / "profiles.png").is_file()
