@@ -33,9 +33,8 @@ from hydra.types import RunMode
 from omegaconf import DictConfig, OmegaConf
 
 from roto_trl.analysis.runs import run_objective
-from roto_trl.analysis.summary import finish_run, repair_end_files
+from roto_trl.analysis.summary import finish_run, finished_note
 from roto_trl.config import check_run_name, checked_config, hydra_overrides, plain, settle_for_machine
-from roto_trl.envs.factory import TASKS
 from roto_trl.trainers import builders as build
 from roto_trl.trainers.checkpoint import BEST, LATEST, RunCheckpoints
 from roto_trl.trainers.divergence import DivergenceWatch
@@ -46,7 +45,7 @@ from roto_trl.trainers.loggers import MetricLogger
 from roto_trl.trainers.ppo import rollout_stats
 from roto_trl.trainers.progress import TrainingProgress
 from roto_trl.trainers.provenance import record_sitting
-from roto_trl.trainers.run_dir import finished_reason, place_multirun_job, prepare_run, rewind, save_config
+from roto_trl.trainers.run_dir import place_multirun_job, prepare_run, rewind, save_config
 from roto_trl.trainers.schedule import evaluation_due, evaluations_left
 from roto_trl.trainers.state import TrainState, rng_state, seed_everything, set_rng_state
 from roto_trl.utils.resources import resource_dir
@@ -67,25 +66,12 @@ def train(cfg: DictConfig, overrides: Sequence[str] = ()) -> Path:
     cfg, run_dir, resumed, lock = prepare_run(cfg, overrides)
     try:
         if resumed is not None:
-            reason = finished_reason(cfg, resumed)
-            if reason is not None:
-                headline = TASKS[str(cfg.env.task)].HEADLINE_METRIC
-                repaired = repair_end_files(cfg, run_dir, resumed, headline)
-                done = (
-                    f"wrote the end files it lacked ({', '.join(repaired)})"
-                    if repaired
-                    else "it is unchanged"
-                )
-                print(
-                    f"resume={run_dir}: nothing to train, {reason}; {done}. Train on with "
-                    f"resume={run_dir} total_frames=<more> (or a larger time_limit_minutes)"
-                )
+            note = finished_note(cfg, run_dir, resumed)  # a finished run: its end files, repaired
+            if note is not None:
+                print(note)
                 return run_dir / "summary.json"
             save_config(cfg, run_dir)  # an extended budget
-            dropped = {kind: n for kind, n in rewind(run_dir, resumed).items() if n}
-            if dropped:
-                rows = ", ".join(f"{n} of {kind}.csv" for kind, n in dropped.items())
-                print(f"resume: dropped the rows logged after the checkpoint ({rows})")
+            rewind(run_dir, resumed)  # the logs and best.pt back to the checkpoint
         with StopRequests() as stop:
             return run_training(cfg, run_dir, resumed, stop)
     finally:

@@ -157,7 +157,7 @@ def test_truncation_at_600_steps():
         (dict(task="bounce", num_envs=2, substep=3), r"unknown override\(s\) \['substep'\]"),
         (dict(task="bounce", num_envs=2, reward_scales={"rotation": 1.0}), "unknown reward term"),
         (dict(task="bounce", num_envs=2, action_ema=0.0), "action_ema must be in"),
-        (dict(task="bounce", num_envs=2, substeps=0), "substeps must be a positive integer"),
+        (dict(task="bounce", num_envs=2, substeps=0), "substeps must be >= 1, got 0"),
         (dict(task="find", num_envs=2, tolerances=[0.02, 0.01]), r"must include 0.03 \(3 cm"),
     ],
 )
@@ -217,7 +217,7 @@ def test_out_of_range_actions_are_clipped_to_the_ends_of_the_joint_ranges():
         (
             ("bounce", 2),
             {"reward_scales": {"air": "abc"}},
-            r"reward_scales\['air'\] must be a number, got 'abc'",
+            r"reward_scales\['air'\] must be a finite number, got 'abc'",
         ),
         (("bounce", 10_000_000), {}, r"needs about \d+\.\d GiB .* GiB available; use fewer worlds"),
     ],

@@ -277,3 +277,29 @@ def test_a_process_told_to_stop_with_its_parent_gets_sigterm_when_the_parent_die
     while time.time() < deadline and not marker.exists():
         time.sleep(0.1)
     assert marker.exists()
+
+
+def test_evaluating_another_checkpoint_or_policy_leaves_eval_json_alone(finished_run):
+    from roto_trl.analysis.checkpoint_eval import evaluate_run
+
+    before = (finished_run / "eval.json").read_text()
+    assert evaluate_run(finished_run, "latest", episodes=2).name == "eval-latest.json"
+    assert (
+        evaluate_run(finished_run, "best", episodes=2, policy="stochastic").name
+        == "eval-best-stochastic.json"
+    )
+    assert (finished_run / "eval.json").read_text() == before
+
+
+def test_evaluate_and_record_print_their_keys_with_help(capsys):
+    from roto_trl.evaluate import main as evaluate_main
+    from roto_trl.record import main as record_main
+
+    for main, keys in (
+        (evaluate_main, ("run ", "checkpoint ", "policy ", "out ")),
+        (record_main, ("task ", "policy ")),
+    ):
+        with pytest.raises(SystemExit) as stop:
+            main(["--help"])
+        printed = capsys.readouterr().out
+        assert stop.value.code == 0 and all(key in printed for key in keys)

@@ -275,7 +275,7 @@ def test_nan_stops_the_run_and_keeps_the_last_good_checkpoint(tmp_path):
     # the run continues with a reward that overflows: returns become inf
     config = OmegaConf.load(run / "config.yaml")
     config.total_frames = 1024
-    config.env.overrides.reward_scales = {"dist": float("inf")}
+    config.env.overrides.reward_scales = {"dist": 1e308}  # finite, but the returns overflow to inf
     OmegaConf.save(config, run / "config.yaml")
     with pytest.raises(NonFiniteError, match="NaN or inf"):
         train(compose_cfg([f"resume={run}"]))

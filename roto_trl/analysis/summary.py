@@ -11,8 +11,10 @@ from omegaconf import DictConfig
 from roto_trl.analysis.checkpoint_eval import evaluate_run
 from roto_trl.analysis.plots import plot_run
 from roto_trl.analysis.report import write_index
+from roto_trl.envs.factory import TASKS
 from roto_trl.trainers.loggers import read_csv
 from roto_trl.trainers.progress import format_duration
+from roto_trl.trainers.run_dir import finished_reason
 from roto_trl.trainers.state import TrainState
 
 
@@ -85,6 +87,20 @@ def finish_run(
     print(f"physical metrics of the best checkpoint: {evaluation.resolve()}")
     print(f"report: {(run_dir / 'index.md').resolve()}")
     return path
+
+
+def finished_note(cfg: DictConfig, run_dir: Path, state: dict) -> str | None:
+    """For a resumed run that has nothing left to train: write the end files it lacks and say so
+    in one line; None for a run with frames or time left."""
+    reason = finished_reason(cfg, state)
+    if reason is None:
+        return None
+    repaired = repair_end_files(cfg, run_dir, state, TASKS[str(cfg.env.task)].HEADLINE_METRIC)
+    done = f"wrote the end files it lacked ({', '.join(repaired)})" if repaired else "it is unchanged"
+    return (
+        f"resume={run_dir}: nothing to train, {reason}; {done}. Train on with "
+        f"resume={run_dir} total_frames=<more> (or a larger time_limit_minutes)"
+    )
 
 
 END_FILES = ("summary.json", "plots/eval.png", "plots/train.png", "eval.json", "index.md")

@@ -100,6 +100,16 @@ def load_reference(path: Path | None = None) -> Reference:
     return reference
 
 
+def reference_range(reference: Reference, exp: str, metric: str, up_to: float) -> tuple | None:
+    """The authors' curve of ``exp``'s ``metric`` up to ``up_to`` frames: ``(frames, mean, max)``
+    arrays (their seeds' mean and best), or None where they kept none."""
+    curve = {f: v for f, v in sorted(reference.get((exp, metric), {}).items()) if f <= up_to}
+    if not curve:
+        return None
+    frames = np.asarray(list(curve), dtype=float)
+    return frames, np.asarray([v[0] for v in curve.values()]), np.asarray([v[1] for v in curve.values()])
+
+
 def results_table(runs: list[Run], at: list[int], reference: Reference | None = None) -> list[Row]:
     """Rows of every experiment of ``runs`` (grouped by ``exp_name``), metric and point: the final
     evaluation, then each of ``at``. With ``reference``: the authors' numbers of the same

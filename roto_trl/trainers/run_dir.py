@@ -72,9 +72,12 @@ def rewind(run_dir: Path, state: dict[str, Any]) -> dict[str, int]:
     """Bring ``run_dir`` back to its latest checkpoint ``state``: cut ``train.csv``, ``eval.csv``
     and ``aux.csv`` to its frame count and reconcile ``best.pt`` (:func:`reconcile_best`).
 
-    Returns the rows dropped per file.
+    Returns the rows dropped per file (and says so in one line).
     """
     dropped = truncate_csv_logs(run_dir, int(state["frames"]))
+    if any(dropped.values()):
+        rows = ", ".join(f"{n} of {kind}.csv" for kind, n in dropped.items() if n)
+        print(f"resume: dropped the rows logged after the checkpoint ({rows})")
     loaded = Path(state["loaded_from"]) if "loaded_from" in state else Path(run_dir) / "checkpoints" / LATEST
     if loaded.name == LATEST:  # resumed from best.pt: best.pt is that checkpoint already
         reconcile_best(Path(run_dir) / "checkpoints", state)

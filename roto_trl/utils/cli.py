@@ -4,7 +4,6 @@ checks of config values they and ``train.py`` share."""
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
 
 from omegaconf import DictConfig, OmegaConf
 from omegaconf.errors import ConfigKeyError
@@ -71,33 +70,6 @@ def frames_label(frames: int) -> str:
 def is_number(value) -> bool:
     """An int or float from a config (a YAML ``true`` is a bool, not a number)."""
     return isinstance(value, int | float) and not isinstance(value, bool)
-
-
-def number_pair(value) -> tuple[float, float] | None:
-    """A config's list of exactly two numbers as a tuple, anything else None (for the caller's
-    one-line error)."""
-    if isinstance(value, str) or not isinstance(value, Sequence) or len(value) != 2:
-        return None
-    return (value[0], value[1]) if all(is_number(v) for v in value) else None
-
-
-def non_negative_or_off(key: str, value, example: str = "") -> float:
-    """``value`` as a float when it is a number >= 0 (null: 0, off); otherwise a one-line
-    ``ValueError`` naming ``key`` (and an example value, when given)."""
-    value = 0.0 if value is None else value
-    if not (is_number(value) and value >= 0):
-        hint = f", e.g. {example}" if example else ""
-        raise ValueError(f"{key} must be a number >= 0 (0: off{hint}), got {value!r}")
-    return float(value)
-
-
-def positive_int_or_null(key: str, value, null_means: str = "") -> int | None:
-    """``value`` when it is null or an integer >= 1; otherwise a one-line ``ValueError`` naming
-    ``key`` (and what null means, when given)."""
-    if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
-        meaning = f" ({null_means})" if null_means else ""
-        raise ValueError(f"{key} must be a positive integer or null{meaning}, got {value!r}")
-    return value
 
 
 def check_int(prog: str, cfg: DictConfig, key: str, minimum: int, *, optional: bool = False) -> None:

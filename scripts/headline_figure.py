@@ -1,0 +1,72 @@
+"""The README's headline figure: our learning curves against the authors', per task.
+
+    .venv/bin/python scripts/headline_figure.py 'runs/study/bounce/*' 'runs/study/find/*' \\
+        'runs/baoding/*' --out docs/headline.png
+
+One panel per task among the runs given: the task's headline metric of each experiment's
+evaluations against frames (the mean over seeds, a band from its lowest to highest seed), and
+beside it the authors' mean and best seed at the same frames
+(``assets/reference/authors_curves.csv``; theirs at 4096 worlds, an evaluation every 2.5 M
+frames). Runs are read and grouped as the analysis tools do (``analysis.runs``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from roto_trl.analysis.metrics import describe
+from roto_trl.analysis.plots import save_figure
+from roto_trl.analysis.runs import by_experiment, countable, find_runs, headline_of
+from roto_trl.analysis.table import load_reference, reference_range
+from roto_trl.trainers.loggers import read_csv
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("runs", nargs="+", help="run directories or quoted globs, any tasks")
+    parser.add_argument("--out", type=Path, default=Path("docs/headline.png"))
+    parser.add_argument("--unfinished", action="store_true", help="draw runs still going too")
+    args = parser.parse_args(argv)
+    runs = countable(find_runs(args.runs), "headline", unfinished=args.unfinished)
+    tasks = list(dict.fromkeys(r.task for r in runs))
+    reference = load_reference()
+    fig, axes = plt.subplots(1, len(tasks), figsize=(5.2 * len(tasks), 3.9), squeeze=False)
+    for ax, task in zip(axes[0], tasks, strict=True):
+        members = [r for r in runs if r.task == task]
+        headline = headline_of(members[0].path)
+        end = 0.0
+        for i, (group, group_runs) in enumerate(by_experiment(members).items()):
+            curves = [read_csv(r.path / "eval.csv") for r in group_runs]
+            last = min(c["frames"][-1] for c in curves)
+            frames = np.unique(np.concatenate([[f for f in c["frames"] if f <= last] for c in curves]))
+            values = np.stack([np.interp(frames, c["frames"], c[headline]) for c in curves])
+            seeds = f"{len(group_runs)} seed{'s' if len(group_runs) > 1 else ''}"
+            ax.plot(frames, values.mean(0), color=f"C{i}", label=f"ours: {group} ({seeds})")
+            ax.fill_between(frames, values.min(0), values.max(0), color=f"C{i}", alpha=0.15)
+            theirs = reference_range(reference, group_runs[0].exp_name, headline, up_to=4 * last)
+            if theirs:
+                at, mean, best = theirs
+                exp = group_runs[0].exp_name
+                ax.plot(at, mean, "x--", color=f"C{i}", linewidth=0.8, label=f"authors: {exp}, mean")
+                ax.plot(at, best, ":", color=f"C{i}", linewidth=0.8, label=f"authors: {exp}, best seed")
+            end = max(end, last)
+        name, unit = describe(headline)
+        ax.set(title=f"{task}: {name}", xlabel="frames", ylabel=unit or name)
+        ax.legend(fontsize=7)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    print(save_figure(fig, args.out, dpi=110).resolve())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
