@@ -12,11 +12,14 @@ import matplotlib
 matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.ticker import FuncFormatter
 
 from roto_trl.analysis.metrics import describe
 from roto_trl.analysis.runs import headline_of
 from roto_trl.trainers.loggers import read_csv
+from roto_trl.utils.cli import frames_label
 
+FRAMES = FuncFormatter(lambda value, _: frames_label(round(value)) if value > 0 else "0")  # 1.5M, 400k
 EVAL_SKIP = {"frames", "iteration", "return_mean", "return_std", "time"}
 TRAIN_PANELS = (
     "episode_return",
@@ -63,6 +66,7 @@ def panel(ax, x, y, key: str, *, band=None) -> None:
     ax.set(
         title=name + (" (mean ± std)" if band is not None else ""), xlabel="frames", ylabel=unit or "value"
     )
+    ax.xaxis.set_major_formatter(FRAMES)
     if not has.any():
         ax.text(0.5, 0.5, "not logged yet", ha="center", va="center", transform=ax.transAxes)
 
