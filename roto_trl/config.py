@@ -117,7 +117,6 @@ class AgentConfig:
     lr_schedule: LrSchedule = LrSchedule.fixed
     kl_target: float = _range(0.008, gt=0)
     std_ceiling: float | None = _range(None, gt=0)
-    adam_eps: float = _range(1.0e-8, gt=0)
     weight_decay: float = _range(0.0, ge=0)
     precision: Precision = Precision.float32
     compile: bool = False
@@ -228,6 +227,7 @@ RETIRED: dict[str, Callable[[Any, Mapping], bool]] = {
     "agent.anneal_step_size": _equals(False),
     "agent.adam_betas": _equals([0.9, 0.999]),
     "agent.weight_decay_parts": _equals(None),
+    "agent.adam_eps": _equals(1.0e-8),
     "agent.fused_adam": _always,  # the same maths either way; fused Adam is always used now
     "agent.std_ceiling_frames": lambda value, cfg: (
         value == [0.6, 0.9] or OmegaConf.select(cfg, "agent.std_ceiling") is None

@@ -82,7 +82,10 @@ def test_a_retired_option_is_refused_with_its_tag_and_dropped_where_it_changed_n
         typed_config({"agent": {"policy_ema_decay": 0.9}})
     with pytest.raises(ValueError, match=r"agent\.std_ceiling_frames=\[500000, 1500000\]"):
         typed_config({"agent": {"std_ceiling": 0.3, "std_ceiling_frames": [500000, 1500000]}})
-    off = {"policy_ema_decay": 0.0, "fused_adam": False, "adam_betas": [0.9, 0.999], "gae_horizon": None}
+    with pytest.raises(ValueError, match=r"agent\.adam_eps=1e-05: this option was retired"):
+        typed_config({"agent": {"adam_eps": 1e-5}})
+    off = {"policy_ema_decay": 0.0, "adam_eps": 1e-8, "fused_adam": False}
+    off |= {"adam_betas": [0.9, 0.999], "gae_horizon": None}
     assert plain(typed_config({"agent": off}))["agent"] == plain(schema())["agent"]
     # the window of a run without a ceiling changed nothing either
     typed_config({"agent": {"std_ceiling": None, "std_ceiling_frames": [0, 10]}})
