@@ -6,8 +6,10 @@ import subprocess
 import numpy as np
 import pytest
 from helpers import TRAIN
+from hydra import compose, initialize_config_dir
 
 from roto_trl.analysis.study import improvement, iqm_interval, oriented, verdict
+from roto_trl.utils.resources import resource_dir
 
 
 def test_iqm_and_probability_of_improvement_by_hand():
@@ -28,6 +30,17 @@ def test_verdicts_from_the_interval():
     assert verdict(0.4, 0.7) == "not resolved"
     assert verdict(0.4, 0.7, same=True) == "not resolved (no difference found)"
     assert verdict(0.55, 0.9, same=True) == "contradicted"
+
+
+@pytest.mark.parametrize("task", ["bounce", "find", "baoding"])
+def test_a_study_goes_seed_by_seed_through_every_variant_of_its_task(task):
+    with initialize_config_dir(str(resource_dir("conf")), version_base="1.3"):
+        cfg = compose("train", overrides=[f"+study={task}"], return_hydra_config=True)
+    params = cfg.hydra.sweeper.params
+    assert list(params) == ["seed", "exp"]  # the product's first key varies slowest
+    assert params.seed == "range(100,110)"
+    variants = sorted(p.stem for p in (resource_dir("conf") / "exp").glob(f"{task}_*.yaml"))
+    assert sorted(params.exp.split(",")) == variants and len(variants) == 8
 
 
 @pytest.mark.slow  # end to end: a multirun of four runs, run twice, then scored and analysed
