@@ -7,6 +7,7 @@
     python roto_trl/analyse.py aux-memory 'runs/baoding_fd*/*'        # auxiliary loss per minibatch
     python roto_trl/analyse.py table 'runs/multirun/*/*' --at 2.5M,5M --reference   # the results table
     python roto_trl/analyse.py compare 'runs/find_fd_bf16/*' --against 'runs/find_fd/*'  # paired by seed
+    python roto_trl/analyse.py episodes runs/baoding_ppo/<run> --every 1M   # sampled policy vs controller
 
 Runs are run directories of ``train.py`` or quoted globs of them. Each command writes PNGs and a
 CSV of the numbers behind them to ``--out`` (default ``runs/analysis/<command>``) and prints
@@ -30,6 +31,7 @@ import torch
 
 from roto_trl.analysis.checkpoint_eval import load_run
 from roto_trl.analysis.compare import compare_runs, comparison_csv_rows, comparison_markdown
+from roto_trl.analysis.episodes import run_windows, windows_csv_rows, windows_markdown
 from roto_trl.analysis.metrics import describe
 from roto_trl.analysis.mutual_information import latent_state_information, pca
 from roto_trl.analysis.plots import save_figure
@@ -327,6 +329,26 @@ def cmd_stability(runs: list[Run], out: Path, args) -> list[Path]:
     return [out / "stability.md", write_csv(out / "stability.csv", header, csv_rows)]
 
 
+def cmd_episodes(runs: list[Run], out: Path, args) -> list[Path]:
+    """Per run, window by window: the training episodes (the sampled policy) beside the
+    evaluations (the deterministic controller), for every metric both log."""
+    every = parse_frames(args.every)[0]
+    metrics = args.metric.split(",") if args.metric else None
+    sections, headers, rows = [], set(), []
+    for run in runs:
+        names, windows = run_windows(run, every, metrics)
+        sections.append(windows_markdown(run.label, names, windows))
+        header, run_rows = windows_csv_rows(run.label, names, windows)
+        headers.add(tuple(header))
+        rows += run_rows
+    if len(headers) > 1:  # one CSV, one set of columns
+        raise ValueError("these runs log different metrics; give the ones to show with --metric")
+    markdown = "\n".join(sections)
+    print(markdown)
+    (out / "episodes.md").write_text(markdown)
+    return [out / "episodes.md", write_csv(out / "episodes.csv", list(headers.pop()), rows)]
+
+
 def cmd_compare(runs: list[Run], out: Path, args) -> list[Path]:
     """The runs against the --against runs, paired by seed: finals, their paired difference and
     its standard error, holding, frames/s."""
@@ -361,6 +383,7 @@ COMMANDS = {
     "aux-memory": cmd_aux_memory,
     "table": cmd_table,
     "stability": cmd_stability,
+    "episodes": cmd_episodes,
     "compare": cmd_compare,
     "study": cmd_study,
 }
@@ -427,6 +450,13 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
                 "--metric",
                 default=None,
                 help="an eval.csv column, e.g. return_mean (default: the task's headline metric)",
+            )
+        if name == "episodes":
+            p.add_argument("--every", default="1M", help="the windows' width in frames, e.g. 500k or 1M")
+            p.add_argument(
+                "--metric",
+                default=None,
+                help="eval.csv columns, comma-separated (default: every one the training episodes log too)",
             )
         if name == "compare":
             p.add_argument(

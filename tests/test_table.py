@@ -240,3 +240,32 @@ def test_training_windows_by_hand():
     assert at[:2] == [pytest.approx(3.0), 1.0] and math.isnan(at[2])
     # a per-episode log whose last episode ended before the budget: ``until`` says what it covers
     assert training_at(frames, values, episodes, [400_000], window=150_000, until=400_000) == [6.0]
+
+
+def test_episodes_windows_by_hand(tmp_path, capsys):
+    run = tmp_path / "baoding_ppo-s3"
+    run.mkdir()
+    config = "exp_name: baoding_ppo\nseed: 3\ntotal_frames: 400\nenv:\n  task: baoding\n"
+    (run / "config.yaml").write_text(config)
+    # windows of 200 frames: (0, 200] and (200, 300], the log's end
+    (run / "train.csv").write_text(
+        "frames,episodes,episode_return,episode/turns,loss\n"
+        "100,1,10,2.0,0.5\n200,3,30,0.0,0.5\n250,,,,0.5\n300,2,20,1.0,0.5\n"
+    )
+    (run / "eval.csv").write_text(
+        "frames,return_mean,turns,latent_rank\n100,70,0.5,3\n200,80,0.0,3\n300,90,0.25,3\n"
+    )
+    out = tmp_path / "episodes"
+    analyse.main(["episodes", str(run), "--every", "200", "--out", out.as_posix()])
+    with (out / "episodes.csv").open(newline="") as handle:
+        first, second = list(csv.DictReader(handle))
+    # training episodes weighted by how many ended: (1 x 2.0 + 3 x 0.0) / 4; evaluations a plain mean
+    train = [float(first["train_turns"]), float(first["train_return_mean"]), float(second["train_turns"])]
+    assert train == [0.5, 25.0, 1.0] and (first["episodes"], second["episodes"]) == ("4", "2")
+    evaluation = [float(first["eval_turns"]), float(first["eval_return_mean"]), float(second["eval_turns"])]
+    assert evaluation == [0.25, 75.0, 0.25] and (first["evaluations"], second["evaluations"]) == ("2", "1")
+    assert second["end"] == "300"
+    assert "latent_rank" not in first  # not logged for the training episodes
+    assert "| 0-200 | 4 | 25 | 0.5 | 2 | 75 | 0.25 |" in capsys.readouterr().out
+    with pytest.raises(SystemExit, match=r"latent_rank is not logged for both .* from return_mean, turns$"):
+        analyse.main(["episodes", str(run), "--metric", "latent_rank", "--out", out.as_posix()])
