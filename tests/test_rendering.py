@@ -1,13 +1,21 @@
 """Offscreen frames and the episode recorder (skipped, with the reason, where no GL is available)."""
 
-import av
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 from helpers import hold_pose
+from PIL import Image
 
 from roto_trl import TASKS, make_env
 from roto_trl.envs.rendering import LIT_RGBA
 from roto_trl.record import main as record_main
+from roto_trl.utils.video import read_mp4
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
+from frame_strip import main as frame_strip_main
+from frame_strip import strip_indices
 
 
 def render_or_skip(env, **kwargs):
@@ -53,10 +61,22 @@ def test_record_writes_an_mp4_of_the_episode(tmp_path):
     render_or_skip(env, width=64, height=48)
     env.close()
     record_main(["task=find", f"out={out}", "max_steps=12", "width=160", "height=120"])
-    with av.open(str(out)) as container:
-        frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    frames = read_mp4(out)
     assert len(frames) == 13  # the first observation, then one frame per step
     assert frames[0].shape == (120, 160, 3) and frames[-1].std() > 10
+    strip = tmp_path / "strip.png"  # the docs' frame strip of that video: 0 to 0.2 s at 60 frames a second
+    assert frame_strip_main([str(out), "--frames", "3", "--out", str(strip)]) == 0
+    width, height = Image.open(strip).size
+    assert width > 2 * height  # three frames side by side
+    with pytest.raises(SystemExit, match=r"--start 1 s must lie in the video's 0-0\.20 s, the start first"):
+        frame_strip_main([str(out), "--start", "1", "--out", str(strip)])
+
+
+def test_frame_strip_takes_frames_evenly_from_the_window():
+    assert strip_indices(601, 5, 0.0, None) == [0, 150, 300, 450, 600]  # a whole 10 s episode
+    assert strip_indices(601, 3, 1.0, 2.0) == [60, 90, 120]  # from 1 s to 2 s
+    with pytest.raises(ValueError, match="holds 3 frames, fewer than --frames 4"):
+        strip_indices(601, 4, 1.0, 1 + 2 / 60)
 
 
 def test_record_rejects_unknown_keys_and_tasks():

@@ -1,4 +1,4 @@
-"""Writing rendered frames as video files."""
+"""Writing rendered frames as video files, and reading them back."""
 
 from __future__ import annotations
 
@@ -21,3 +21,9 @@ def write_mp4(path: Path, frames: list[np.ndarray], fps: int = FPS) -> None:
             frame = av.VideoFrame.from_ndarray(rgb[: stream.height, : stream.width], format="rgb24")
             container.mux(stream.encode(frame))
         container.mux(stream.encode())
+
+
+def read_mp4(path: Path) -> list[np.ndarray]:
+    """The RGB frames ``[H, W, 3]`` uint8 of a video file, in order."""
+    with av.open(str(path)) as container:
+        return [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
