@@ -15,6 +15,7 @@ Keys (``key=value``, as Hydra's overrides; ``--help`` prints this):
                samples of its Gaussian, as the agent acts in training)
   noise_scale  with policy=stochastic: the policy's std times this factor (default 1)
   video        true: an mp4 of the first episode in ``<run>/videos/`` (default false)
+  camera       the video's camera (default ``roto:side``; Baoding also has ``roto:above``)
   out          where the result goes; default ``<run>/eval.json`` for the best checkpoint's own
                deterministic policy (what training's report and the analyses read), else a file
                named after what is evaluated: ``eval-latest.json``, ``eval-best-stochastic.json``
@@ -37,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from roto_trl.analysis.checkpoint_eval import evaluate_run, result_name
+from roto_trl.envs.rendering import DEFAULT_CAMERA
 from roto_trl.utils.cli import check_int, parse_key_values
 from roto_trl.utils.paths import writable_file
 
@@ -46,6 +48,7 @@ DEFAULTS = {
     "episodes": None,
     "seed": None,
     "video": False,
+    "camera": DEFAULT_CAMERA,
     "out": None,
     "policy": "deterministic",
     "noise_scale": 1.0,
@@ -86,6 +89,7 @@ def main(argv: list[str] | None = None) -> Path:
             None if cfg.out is None else Path(str(cfg.out)),
             str(cfg.policy),
             cfg.noise_scale,
+            str(cfg.camera),
         )
     except (ValueError, RuntimeError, FileNotFoundError) as err:  # bad input: one line, no traceback
         raise SystemExit(f"evaluate: {err}") from None

@@ -35,6 +35,7 @@ import torch
 from omegaconf import DictConfig, OmegaConf
 
 from roto_trl.envs.factory import TASKS, make_env
+from roto_trl.envs.rendering import DEFAULT_CAMERA
 from roto_trl.trainers.builders import make_task_env
 from roto_trl.trainers.checkpoint import load_checkpoint, policy_from_checkpoint
 from roto_trl.utils.cli import check_int, parse_key_values
@@ -46,7 +47,7 @@ DEFAULTS = {
     "policy": "random",
     "seed": 0,
     "out": None,
-    "camera": "roto:side",
+    "camera": DEFAULT_CAMERA,
     "width": 640,
     "height": 480,
     "max_steps": None,

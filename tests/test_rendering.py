@@ -44,6 +44,14 @@ def test_render_gives_a_non_blank_frame_with_lit_sensors(task):
     env.close()
 
 
+def test_baoding_is_seen_from_above_too():
+    env = make_env("baoding", 1, seed=0)
+    hold_pose(env, 5)
+    above = render_or_skip(env, camera="roto:above", width=160, height=120)
+    assert above.std() > 20 and not np.array_equal(above, env.render(0, width=160, height=120))
+    env.close()
+
+
 def test_render_rejects_a_bad_index_and_camera():
     env = make_env("bounce", 1)
     env.reset()

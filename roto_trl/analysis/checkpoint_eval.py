@@ -15,6 +15,7 @@ from omegaconf import DictConfig
 
 from roto_trl.analysis.report import write_index
 from roto_trl.config import run_config
+from roto_trl.envs.rendering import DEFAULT_CAMERA
 from roto_trl.modules.distributions import DETERMINISTIC_ACTIONS
 from roto_trl.trainers.builders import eval_seed, make_eval_env
 from roto_trl.trainers.checkpoint import BEST, LATEST, agent_from_checkpoint, load_checkpoint
@@ -104,6 +105,7 @@ def evaluate_checkpoint(
     video: bool = False,
     policy: str = "deterministic",
     noise_scale: float = 1.0,
+    camera: str = DEFAULT_CAMERA,
 ) -> tuple[dict[str, Any], list]:
     """Evaluate a checkpoint's policy on ``episodes`` fresh worlds of its task.
 
@@ -116,7 +118,8 @@ def evaluate_checkpoint(
     the scaled log-std keeps training's clamp (``LOG_STD_RANGE``: std at most e^2).
 
     Returns the result (return mean/std, mean episode length, the encoder's latent rank, episode
-    metric means, physical metrics) and, with ``video``, the RGB frames of the first episode.
+    metric means, physical metrics) and, with ``video``, the RGB frames of the first episode
+    seen from ``camera``.
     """
     policy = resolve_policy(policy, state)
     noise_scale = checked_noise_scale(noise_scale, policy)
@@ -131,7 +134,7 @@ def evaluate_checkpoint(
             with torch.no_grad():  # this evaluation's copy of the policy only
                 agent.policy_head.log_std.add_(math.log(noise_scale))
         base = env.base_env
-        render = (lambda: base.render(0)) if video else None
+        render = (lambda: base.render(0, camera=camera)) if video else None
         result = run_episodes(env, agent, seed, render=render, stochastic=policy == "stochastic")
         physical = base.physical_metrics(result.final)
     finally:
@@ -163,6 +166,7 @@ def evaluate_run(
     out: Path | None = None,
     policy: str = "deterministic",
     noise_scale: float = 1.0,
+    camera: str = DEFAULT_CAMERA,
 ) -> Path:
     """Evaluate one checkpoint of a run, write its result (``result_name``: ``eval.json`` for the best
     checkpoint's default policy) and the video, refresh ``index.md``; returns the result's path."""
@@ -172,10 +176,11 @@ def evaluate_run(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     seed = eval_seed(cfg) if seed is None else int(seed)
-    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video, policy, noise_scale)
+    summary, frames = evaluate_checkpoint(cfg, state, episodes, seed, video, policy, noise_scale, camera)
     summary = {"run_dir": str(run_dir.resolve()), "checkpoint": str(path.resolve()), **summary}
     if video:
-        video_path = run_dir / "videos" / f"eval-{path.stem}-s{seed}.mp4"
+        view = "" if camera == DEFAULT_CAMERA else f"-{camera.removeprefix('roto:')}"
+        video_path = run_dir / "videos" / f"eval-{path.stem}-s{seed}{view}.mp4"
         video_path.parent.mkdir(exist_ok=True)
         write_mp4(video_path, frames)
         summary["video"] = str(video_path.resolve())

@@ -15,6 +15,7 @@ import numpy as np
 
 from roto_trl.envs.batched_mujoco import FULL_PHYSICS
 
+DEFAULT_CAMERA = "roto:side"  # every scene has it (shadow_hand.xml, find.xml)
 LIT_RGBA = np.array([1.0, 0.85, 0.1, 1.0], dtype=np.float32)  # an active sensor's colour
 GL_HELP = (
     "set MUJOCO_GL=egl (or osmesa) before Python starts and install Mesa "

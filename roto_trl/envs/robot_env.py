@@ -26,7 +26,7 @@ import torch
 from torchrl.data import Unbounded
 
 from roto_trl.envs.batched_mujoco import BatchedMujocoEnv, PhysicsReading
-from roto_trl.envs.rendering import SceneRenderer
+from roto_trl.envs.rendering import DEFAULT_CAMERA, SceneRenderer
 from roto_trl.envs.scene import CONTROL_DT, load_scene
 
 _ONES3 = torch.ones(3, 1, dtype=torch.float64)  # sums a force's three squared components (sensor_force)
@@ -329,7 +329,7 @@ class RobotTaskEnv(BatchedMujocoEnv):
         self,
         env_index: int = 0,
         *,
-        camera: str = "roto:side",
+        camera: str = DEFAULT_CAMERA,
         width: int = 640,
         height: int = 480,
         show_contacts: bool = True,
