@@ -47,7 +47,7 @@ from roto_trl.analysis.runs import (
     physical_metrics,
     run_csv,
 )
-from roto_trl.analysis.stability import run_stability, stability_csv_rows, stability_markdown
+from roto_trl.analysis.stability import default_marks, run_stability, stability_csv_rows, stability_markdown
 from roto_trl.analysis.table import (
     load_reference,
     parse_frames,
@@ -320,7 +320,7 @@ def cmd_table(runs: list[Run], out: Path, args) -> list[Path]:
 def cmd_stability(runs: list[Run], out: Path, args) -> list[Path]:
     """Per run: training episodes at frame marks, best and final evaluation of the task's metric,
     median KL and clip fraction."""
-    marks = parse_frames(args.at)
+    marks = parse_frames(args.at) if args.at else default_marks(runs)
     rows = [run_stability(run, marks, args.metric) for run in runs]
     markdown = stability_markdown(rows, marks)
     print(markdown)
@@ -471,7 +471,9 @@ def parse_args(argv: list[str]) -> argparse.Namespace:
             p.add_argument("--no-mi", action="store_true", help="score without the mutual information")
         if name == "stability":
             p.add_argument(
-                "--at", default="0.3M,0.5M,1M,1.5M,2M", help="frame marks of the training-episode column"
+                "--at",
+                default=None,
+                help="frame marks of the training episodes (default: 15, 25, 50, 75, 100 %% of the budget)",
             )
     return parser.parse_args(argv)
 

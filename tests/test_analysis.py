@@ -124,7 +124,7 @@ def test_evaluate_is_deterministic_and_writes_video(runs, tmp_path):
     assert a["physical"] == b["physical"] and a["return_mean"] == b["return_mean"]
     assert {"find_time_3cm", "reached_3cm", "find_time_0.05cm", "reached_0.05cm"} <= set(a["physical"])
     assert Path(b["video"]).stat().st_size > 1000
-    with pytest.raises(SystemExit, match="^evaluate: .*no camera 'roto:above'"):  # Baoding's only
+    with pytest.raises(SystemExit, match=r"^evaluate: .*no camera 'roto:above'"):  # Baoding's only
         evaluate.main([f"run={runs['find']}", "episodes=1", "video=true", "camera=roto:above"])
 
 

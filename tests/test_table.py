@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from roto_trl import analyse
-from roto_trl.analysis.stability import best_evaluation, training_at
+from roto_trl.analysis.runs import Run
+from roto_trl.analysis.stability import best_evaluation, default_marks, training_at
 from roto_trl.analysis.table import frames_label, load_reference, parse_frames, table_metric
 
 M = 1_000_000
@@ -269,3 +270,12 @@ def test_episodes_windows_by_hand(tmp_path, capsys):
     assert "| 0-200 | 4 | 25 | 0.5 | 2 | 75 | 0.25 |" in capsys.readouterr().out
     with pytest.raises(SystemExit, match=r"latent_rank is not logged for both .* from return_mean, turns$"):
         analyse.main(["episodes", str(run), "--metric", "latent_rank", "--out", out.as_posix()])
+
+
+def test_stability_marks_follow_the_budget():
+    def run(budget):
+        return Run(Path("r"), "baoding_ppo", "baoding", 0, {"total_frames": budget})
+
+    assert default_marks([run(2_000_000)]) == [300_000, 500_000, 1_000_000, 1_500_000, 2_000_000]
+    mixed = default_marks([run(2_000_000), run(10_000_000)])  # the largest budget's
+    assert mixed == [1_500_000, 2_500_000, 5_000_000, 7_500_000, 10_000_000]

@@ -43,7 +43,16 @@ TRAINING_METRIC = {  # runs whose train.csv lacks episode/<headline>
     "baoding": "episode/rotations",
 }
 TRAINING_WINDOW = 49_152  # 12 iterations of 256 worlds x 16 steps: a few hundred episodes
-DEFAULT_MARKS = (300_000, 500_000, 1_000_000, 1_500_000, 2_000_000)
+MARK_FRACTIONS = (0.15, 0.25, 0.5, 0.75, 1.0)  # of the budget: 0.3M, 0.5M, 1M, 1.5M, 2M at 2M frames
+DEFAULT_MARKS = tuple(round(f * 2_000_000) for f in MARK_FRACTIONS)
+
+
+def default_marks(runs: list[Run]) -> list[int]:
+    """The training-episode marks of a table of ``runs``: ``MARK_FRACTIONS`` of their largest
+    budget."""
+    budget = max(run.budget for run in runs)
+    return [round(f * budget) for f in MARK_FRACTIONS]
+
 
 # the final checkpoint's result (evaluate.py checkpoint=latest), and its name in runs evaluated before
 LATEST_RESULTS = ("eval-latest.json", "eval_latest.json")
