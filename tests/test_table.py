@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from roto_trl import analyse
+from roto_trl.analysis.episodes import run_windows
 from roto_trl.analysis.runs import Run
 from roto_trl.analysis.stability import best_evaluation, default_marks, training_at
 from roto_trl.analysis.table import frames_label, load_reference, parse_frames, table_metric
@@ -270,6 +271,17 @@ def test_episodes_windows_by_hand(tmp_path, capsys):
     assert "| 0-200 | 4 | 25 | 0.5 | 2 | 75 | 0.25 |" in capsys.readouterr().out
     with pytest.raises(SystemExit, match=r"latent_rank is not logged for both .* from return_mean, turns$"):
         analyse.main(["episodes", str(run), "--metric", "latent_rank", "--out", out.as_posix()])
+
+
+def test_episodes_a_sliver_past_the_budget_joins_the_last_window(tmp_path):
+    # a run stops at the first iteration past its budget: 410 frames of a 400-frame budget
+    run = tmp_path / "baoding_ppo-s3"
+    run.mkdir()
+    (run / "train.csv").write_text("frames,episodes,episode/turns\n200,1,1.0\n400,1,2.0\n410,2,4.0\n")
+    (run / "eval.csv").write_text("frames,turns\n200,0.5\n410,1.5\n")
+    _, windows = run_windows(Run(run, "baoding_ppo", "baoding", 3, {}), every=200)
+    assert [(w.start, w.end, w.episodes) for w in windows] == [(0, 200, 1), (200, 410, 3)]
+    assert windows[1].training["turns"] == pytest.approx((2.0 + 2 * 4.0) / 3)
 
 
 def test_stability_marks_follow_the_budget():

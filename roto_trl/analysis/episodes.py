@@ -63,9 +63,13 @@ def run_windows(run: Run, every: int, metrics: list[str] | None = None) -> tuple
     eval_frames = np.asarray(evals["frames"], dtype=float)
     ones = np.ones_like(eval_frames)
     last = int(frames[-1]) if frames.size else 0
+    # a run stops at the first iteration past its budget: a sliver of under half a window at the
+    # end joins the window before it rather than standing as a window of a few episodes
+    starts = list(range(0, last, every))
+    if len(starts) > 1 and last - starts[-1] < every / 2:
+        starts.pop()
     windows = []
-    for start in range(0, last, every):
-        end = min(start + every, last)
+    for start, end in zip(starts, [*starts[1:], last], strict=True):
         inside = (frames > start) & (frames <= end)
         evaluated = int(((eval_frames > start) & (eval_frames <= end)).sum())
         training, evaluation = {}, {}
