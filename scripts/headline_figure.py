@@ -29,6 +29,17 @@ from roto_trl.analysis.table import load_reference, reference_range
 from roto_trl.trainers.loggers import read_csv
 
 
+def seed_band(curves: list[dict[str, list[float]]], metric: str) -> tuple[np.ndarray, ...]:
+    """Seeds' evaluation curves on common frames: ``(frames, mean, lowest, highest)``, each ``[F]``.
+
+    ``frames`` are every seed's evaluation frames up to the shortest run's last, and each curve is
+    interpolated onto them, so a band never runs past a seed that did not get there."""
+    last = min(c["frames"][-1] for c in curves)
+    frames = np.unique(np.concatenate([[f for f in c["frames"] if f <= last] for c in curves]))
+    values = np.stack([np.interp(frames, c["frames"], c[metric]) for c in curves])
+    return frames, values.mean(0), values.min(0), values.max(0)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -44,22 +55,19 @@ def main(argv: list[str] | None = None) -> int:
     for ax, task in zip(axes[0], tasks, strict=True):
         members = [r for r in runs if r.task == task]
         headline = headline_of(members[0].path)
-        end = 0.0
         for i, (group, group_runs) in enumerate(by_experiment(members).items()):
-            curves = [read_csv(r.path / "eval.csv") for r in group_runs]
-            last = min(c["frames"][-1] for c in curves)
-            frames = np.unique(np.concatenate([[f for f in c["frames"] if f <= last] for c in curves]))
-            values = np.stack([np.interp(frames, c["frames"], c[headline]) for c in curves])
+            frames, mean, low, high = seed_band([read_csv(r.path / "eval.csv") for r in group_runs], headline)
+            last = frames[-1]
             seeds = f"{len(group_runs)} seed{'s' if len(group_runs) > 1 else ''}"
-            ax.plot(frames, values.mean(0), color=f"C{i}", label=f"ours: {group} ({seeds})")
-            ax.fill_between(frames, values.min(0), values.max(0), color=f"C{i}", alpha=0.15)
-            theirs = reference_range(reference, group_runs[0].exp_name, headline, up_to=4 * last)
+            ax.plot(frames, mean, color=f"C{i}", label=f"ours: {group} ({seeds})")
+            ax.fill_between(frames, low, high, color=f"C{i}", alpha=0.15)
+            # theirs up to the evaluation just past ours (2.5 M for a 2 M run; theirs are 2.5 M apart)
+            theirs = reference_range(reference, group_runs[0].exp_name, headline, up_to=1.25 * last)
             if theirs:
-                at, mean, best = theirs
+                at, their_mean, best = theirs
                 exp = group_runs[0].exp_name
-                ax.plot(at, mean, "x--", color=f"C{i}", linewidth=0.8, label=f"authors: {exp}, mean")
+                ax.plot(at, their_mean, "x--", color=f"C{i}", linewidth=0.8, label=f"authors: {exp}, mean")
                 ax.plot(at, best, ":", color=f"C{i}", linewidth=0.8, label=f"authors: {exp}, best seed")
-            end = max(end, last)
         name, unit = describe(headline)
         ax.set(title=f"{task}: {name}", xlabel="frames", ylabel=unit or name)
         ax.legend(fontsize=7)

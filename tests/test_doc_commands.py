@@ -1,12 +1,6 @@
 """Every command in the README's and docs' code blocks still reads as its program reads it."""
 
-import sys
-from pathlib import Path
-
-SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
-sys.path.insert(0, str(SCRIPTS))
-
-from check_doc_commands import ROOT, arguments, check, commands, main  # noqa: E402
+from check_doc_commands import ROOT, arguments, check, commands, main
 
 
 def test_every_documented_command_checks(capsys):

@@ -1,10 +1,10 @@
 """Offscreen frames and the episode recorder (skipped, with the reason, where no GL is available)."""
 
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from frame_strip import main as frame_strip_main
+from frame_strip import strip_indices
 from helpers import hold_pose
 from PIL import Image
 
@@ -12,10 +12,6 @@ from roto_trl import TASKS, make_env
 from roto_trl.envs.rendering import LIT_RGBA
 from roto_trl.record import main as record_main
 from roto_trl.utils.video import read_mp4
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "scripts"))
-from frame_strip import main as frame_strip_main
-from frame_strip import strip_indices
 
 
 def render_or_skip(env, **kwargs):

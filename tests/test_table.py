@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from headline_figure import main as headline_main
+from headline_figure import seed_band
 
 from roto_trl import analyse
 from roto_trl.analysis.episodes import run_windows
@@ -291,3 +293,25 @@ def test_stability_marks_follow_the_budget():
     assert default_marks([run(2_000_000)]) == [300_000, 500_000, 1_000_000, 1_500_000, 2_000_000]
     mixed = default_marks([run(2_000_000), run(10_000_000)])  # the largest budget's
     assert mixed == [1_500_000, 2_500_000, 5_000_000, 7_500_000, 10_000_000]
+
+
+def test_headline_figure_bands_seeds_on_common_frames(tmp_path):
+    short = {"frames": [0.0, 100.0, 200.0], "bounces_per_10s": [0.0, 2.0, 4.0]}
+    long = {"frames": [0.0, 50.0, 250.0], "bounces_per_10s": [0.0, 5.0, 25.0]}
+    frames, mean, low, high = seed_band([short, long], "bounces_per_10s")
+    # up to the shorter run's last evaluation; the longer interpolated onto 100 and 200 (10, 20)
+    assert frames.tolist() == [0.0, 50.0, 100.0, 200.0]
+    assert mean.tolist() == [0.0, 3.0, 6.0, 12.0] and low.tolist() == [0.0, 1.0, 2.0, 4.0]
+    assert high.tolist() == [0.0, 5.0, 10.0, 20.0]
+    for seed, curve in enumerate((short, long)):
+        run = tmp_path / f"bounce_ppo-s{seed}"
+        run.mkdir()
+        config = f"exp_name: bounce_ppo\nseed: {seed}\ntotal_frames: 200\nenv:\n  task: bounce\n"
+        (run / "config.yaml").write_text(config)
+        (run / "summary.json").write_text("{}")
+        points = zip(curve["frames"], curve["bounces_per_10s"], strict=True)
+        rows = "".join(f"{f},1.0,{v}\n" for f, v in points)
+        (run / "eval.csv").write_text("frames,return_mean,bounces_per_10s\n" + rows)
+    out = tmp_path / "headline.png"
+    assert headline_main([str(tmp_path / "bounce_ppo-s*"), "--out", str(out)]) == 0
+    assert out.stat().st_size > 10_000
