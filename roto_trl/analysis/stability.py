@@ -213,7 +213,7 @@ def _median(series: list[float] | None) -> float:
     return float(np.median(values)) if values.size else math.nan
 
 
-def stability_markdown(rows: list[RunStability], marks=DEFAULT_MARKS) -> str:
+def stability_markdown(rows: list[RunStability], marks: list[int]) -> str:
     """A Markdown table, one line per run; the training column lists the values at ``marks``."""
     at = " / ".join(frames_label(m) for m in marks)
     header = (
@@ -249,7 +249,7 @@ def _cell(value: float) -> str:
     return "–" if math.isnan(value) else f"{value:.2f}"
 
 
-def stability_csv_rows(rows: list[RunStability], marks=DEFAULT_MARKS) -> tuple[list[str], list[list]]:
+def stability_csv_rows(rows: list[RunStability], marks: list[int]) -> tuple[list[str], list[list]]:
     """Header and rows for ``stability.csv``: one column per field, ``training_<mark>`` per mark."""
     fields = [k for k in vars(rows[0]) if k != "training"]
     header = [*fields, *(f"training_{frames_label(m)}" for m in marks), "held", "held_checkpoints"]

@@ -185,11 +185,11 @@ def make_optimizer(cfg: DictConfig, agent: Agent) -> torch.optim.Optimizer:
     encoder through the same backward, see ``roto_trl.trainers.auxiliary``).
 
     Adam's eps is torch's 1e-8 (CleanRL's 1e-5 lost its ablation, docs/ablations.md).
-    ``agent.weight_decay`` > 0
-    makes it AdamW: after each step every weight matrix (not the biases, LayerNorm gains or the
-    log-std) shrinks by ``lr * weight_decay`` of itself; the matrices come first, in a group of
-    their own. The decay is scaled by the learning rate, which the KL rule holds at a few 1e-5,
-    so useful values are 1-3, not the usual 0.01 (docs/recipe.md).
+    ``agent.weight_decay`` > 0 makes it AdamW: after each step every weight matrix (not the
+    biases, LayerNorm gains or the log-std) shrinks by ``lr * weight_decay`` of itself; the
+    matrices come first, in a group of their own. The decay is scaled by the learning rate,
+    which the KL rule holds at a few 1e-5, so useful values are 1-3, not the usual 0.01
+    (docs/recipe.md).
     """
     a = cfg.agent
     if a.weight_decay == 0.0:

@@ -68,12 +68,10 @@ def finished_reason(cfg: DictConfig, state: dict[str, Any]) -> str | None:
     return None
 
 
-def rewind(run_dir: Path, state: dict[str, Any]) -> dict[str, int]:
+def rewind(run_dir: Path, state: dict[str, Any]) -> None:
     """Bring ``run_dir`` back to its latest checkpoint ``state``: cut ``train.csv``, ``eval.csv``
-    and ``aux.csv`` to its frame count and reconcile ``best.pt`` (:func:`reconcile_best`).
-
-    Returns the rows dropped per file (and says so in one line).
-    """
+    and ``aux.csv`` to its frame count (saying in one line what was dropped) and reconcile
+    ``best.pt`` (:func:`reconcile_best`)."""
     dropped = truncate_csv_logs(run_dir, int(state["frames"]))
     if any(dropped.values()):
         rows = ", ".join(f"{n} of {kind}.csv" for kind, n in dropped.items() if n)
@@ -81,7 +79,6 @@ def rewind(run_dir: Path, state: dict[str, Any]) -> dict[str, int]:
     loaded = Path(state["loaded_from"]) if "loaded_from" in state else Path(run_dir) / "checkpoints" / LATEST
     if loaded.name == LATEST:  # resumed from best.pt: best.pt is that checkpoint already
         reconcile_best(Path(run_dir) / "checkpoints", state)
-    return dropped
 
 
 def reconcile_best(ckpt_dir: Path, latest: dict[str, Any]) -> None:
