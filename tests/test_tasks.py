@@ -2,6 +2,7 @@
 
 import math
 
+import mujoco
 import numpy as np
 import pytest
 import torch
@@ -168,14 +169,12 @@ def test_placed_balls_carried_once_around_read_one_turn_and_two_swaps(rule):
     reads +1 turn and two swaps (-1 turn the other way); then a new episode reads 0 again."""
     env = make_env("baoding", 1, hand_reset_noise=0.0, swap_rule=rule)
     base = env.base_env
-    env.reset()
+    hold_pose(env, 1)
     m = base.mj_model
     a, b = (torch.tensor(t, dtype=torch.float64) for t in TARGETS)
     centre, half = (a + b) / 2, (b - a) / 2
-    normal = torch.tensor([0.0, -0.155, 0.988], dtype=torch.float64)
-    normal = normal / normal.norm()  # the palm's, near enough; the sensor reads it exactly
-    sensors = torch.zeros(1, 1, m.nsensordata, dtype=torch.float64)
-    sensors[0, 0, base._palm_y] = -normal
+    sensors = base._reading().sensordata[:, -1:].clone()  # the simulator's own palm reading
+    normal = -sensors[0, 0, base._palm_y]
     for sign in (1.0, -1.0):
         base._on_reset_mask(np.array([0]))
         swaps = 0
@@ -190,6 +189,30 @@ def test_placed_balls_carried_once_around_read_one_turn_and_two_swaps(rule):
             swaps += int(base._compute_reward(reading)["rotation"].item())
         assert float(base._turned[0]) / (2 * math.pi) == pytest.approx(sign)
         assert swaps == 2 and int(complete_rotations(base._swaps)) == 1
+    env.close()
+
+
+def test_the_palm_normal_points_up_out_of_the_palm_that_holds_the_balls():
+    """The turns are measured about the palm's normal: in the default pose the palm faces up
+    (within 15 degrees of the world's z), and its normal follows the wrist as the hand moves."""
+    env = make_env("baoding", 1, hand_reset_noise=0.0)
+    base = env.base_env
+    hold_pose(env, 1)
+    normal = -base._reading().sensordata[0, -1, base._palm_y]
+    assert float(normal.norm()) == pytest.approx(1.0)
+    assert float(normal[2]) > math.cos(math.radians(15))
+    palm = base.mj_model.body("robot0:palm").id
+    pose = base.default_pose_action()
+    pose[:2] = -1.0  # both wrist joints to a limit: the palm tilts, and the normal with it
+    td = env.reset()
+    for _ in range(30):
+        td = env.step(td.set("action", pose.unsqueeze(0)))["next"]
+    tilted = -base._reading().sensordata[0, -1, base._palm_y]
+    data = mujoco.MjData(base.mj_model)
+    data.qpos[:] = base._reading().qpos[0].numpy()
+    mujoco.mj_kinematics(base.mj_model, data)
+    assert torch.allclose(tilted, -torch.from_numpy(data.xmat[palm].reshape(3, 3)[:, 1]), atol=1e-3)
+    assert float(torch.dot(tilted, normal)) < math.cos(math.radians(20))
     env.close()
 
 
