@@ -3,6 +3,9 @@ stop or break leave something usable and say what to do, analysis tools refuse w
 count."""
 
 import math
+import pickle
+import signal
+from pathlib import Path
 
 import gymnasium
 import pytest
@@ -11,6 +14,7 @@ from helpers import TINY, compose_cfg
 import roto_trl  # noqa: F401  registers the Gymnasium ids
 from roto_trl import make_env
 from roto_trl.train import train
+from roto_trl.trainers.errors import TrainingInterrupted
 
 # ---------------------------------------------------------------------------- env values
 
@@ -303,3 +307,13 @@ def test_evaluate_and_record_print_their_keys_with_help(capsys):
             main(["--help"])
         printed = capsys.readouterr().out
         assert stop.value.code == 0 and all(key in printed for key in keys)
+
+
+def test_a_stopped_job_s_error_crosses_to_the_multirun_launcher_intact():
+    """A joblib job's error reaches the launcher pickled; a stopped run's must unpickle with its
+    fields (a plain KeyboardInterrupt subclass with its own arguments did not)."""
+    err = TrainingInterrupted(1_234_567, signal.SIGTERM, Path("runs/x"))
+    back = pickle.loads(pickle.dumps(err))
+    assert isinstance(back, TrainingInterrupted) and isinstance(back, KeyboardInterrupt)
+    assert (back.frames, back.signum, back.run_dir) == (1_234_567, signal.SIGTERM, Path("runs/x"))
+    assert str(back) == "stopped at 1,234,567 frames"

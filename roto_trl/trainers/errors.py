@@ -48,6 +48,10 @@ class TrainingInterrupted(KeyboardInterrupt):
         super().__init__(f"stopped at {frames:,} frames")
         self.frames, self.signum, self.run_dir = frames, signum, run_dir
 
+    def __reduce__(self):
+        # a multirun's job sends its error back to the launcher pickled: rebuilt from its fields
+        return type(self), (self.frames, self.signum, self.run_dir)
+
 
 # a single run's exit status and one-line message for each error it reports (``train.py``'s main)
 EXIT_STATUS: dict[type[BaseException], tuple[int, str]] = {
