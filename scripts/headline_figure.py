@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from roto_trl.analysis.metrics import describe
-from roto_trl.analysis.plots import save_figure
+from roto_trl.analysis.plots import FRAMES, save_figure
 from roto_trl.analysis.runs import by_experiment, countable, find_runs, headline_of
 from roto_trl.analysis.table import load_reference, reference_range
 from roto_trl.trainers.loggers import read_csv
@@ -70,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
                 ax.plot(at, best, ":", color=f"C{i}", linewidth=0.8, label=f"authors: {exp}, best seed")
         name, unit = describe(headline)
         ax.set(title=f"{task}: {name}", xlabel="frames", ylabel=unit or name)
+        ax.xaxis.set_major_formatter(FRAMES)
         ax.legend(fontsize=7)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     print(save_figure(fig, args.out, dpi=110).resolve())
