@@ -5,14 +5,17 @@
 
 One panel per task among the runs given: the task's headline metric of each experiment's
 evaluations against frames (the mean over seeds, a band from its lowest to highest seed), and
-beside it the authors' mean and best seed at the same frames
+beside it the authors' mean and best seed over their whole runs
 (``assets/reference/authors_curves.csv``; theirs at 4096 worlds, an evaluation every 2.5 M
-frames). Runs are read and grouped as the analysis tools do (``analysis.runs``).
+frames up to 200-250 M). The frames axis is logarithmic, so that ours (2-10 M) and theirs share
+it and a reader sees at which of their frame counts they reached what ours reach. Runs are read
+and grouped as the analysis tools do (``analysis.runs``).
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -21,6 +24,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.ticker import NullFormatter
 
 from roto_trl.analysis.metrics import describe
 from roto_trl.analysis.plots import FRAMES, save_figure
@@ -57,12 +61,12 @@ def main(argv: list[str] | None = None) -> int:
         headline = headline_of(members[0].path)
         for i, (group, group_runs) in enumerate(by_experiment(members).items()):
             frames, mean, low, high = seed_band([read_csv(r.path / "eval.csv") for r in group_runs], headline)
-            last = frames[-1]
+            drawn = frames > 0  # a log axis has no 0: the untrained policy's point is left out
+            frames, mean, low, high = frames[drawn], mean[drawn], low[drawn], high[drawn]
             seeds = f"{len(group_runs)} seed{'s' if len(group_runs) > 1 else ''}"
             ax.plot(frames, mean, color=f"C{i}", label=f"ours: {group} ({seeds})")
             ax.fill_between(frames, low, high, color=f"C{i}", alpha=0.15)
-            # theirs up to the evaluation just past ours (2.5 M for a 2 M run; theirs are 2.5 M apart)
-            theirs = reference_range(reference, group_runs[0].exp_name, headline, up_to=1.25 * last)
+            theirs = reference_range(reference, group_runs[0].exp_name, headline, up_to=math.inf)
             if theirs:
                 at, their_mean, best = theirs
                 exp = group_runs[0].exp_name
@@ -70,7 +74,9 @@ def main(argv: list[str] | None = None) -> int:
                 ax.plot(at, best, ":", color=f"C{i}", linewidth=0.8, label=f"authors: {exp}, best seed")
         name, unit = describe(headline)
         ax.set(title=f"{task}: {name}", xlabel="frames", ylabel=unit or name)
+        ax.set_xscale("log")
         ax.xaxis.set_major_formatter(FRAMES)
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.legend(fontsize=7)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     print(save_figure(fig, args.out, dpi=110).resolve())
