@@ -1,7 +1,7 @@
 """The README's headline figure: our learning curves against the authors', per task.
 
-    .venv/bin/python scripts/headline_figure.py 'runs/study/bounce/*' 'runs/study/find/*' \\
-        'runs/baoding/*' --out docs/headline.png
+    .venv/bin/python scripts/headline_figure.py 'runs/study/find/find_ppo-s*' \\
+        'runs/study/bounce/bounce_ppo-s*' 'runs/baoding/baoding_ppo-s1?' --out docs/headline.png
 
 One panel per task among the runs given: the task's headline metric of each experiment's
 evaluations against frames (the mean over seeds, a band from its lowest to highest seed), and
