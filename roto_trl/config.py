@@ -116,7 +116,6 @@ class AgentConfig:
     value_norm: bool = True
     lr_schedule: LrSchedule = LrSchedule.fixed
     kl_target: float = _range(0.008, gt=0)
-    std_ceiling: float | None = _range(None, gt=0)
     weight_decay: float = _range(0.0, ge=0)
     precision: Precision = Precision.float32
     compile: bool = False
@@ -229,9 +228,8 @@ RETIRED: dict[str, Callable[[Any, Mapping], bool]] = {
     "agent.weight_decay_parts": _equals(None),
     "agent.adam_eps": _equals(1.0e-8),
     "agent.fused_adam": _always,  # the same maths either way; fused Adam is always used now
-    "agent.std_ceiling_frames": lambda value, cfg: (
-        value == [0.6, 0.9] or OmegaConf.select(cfg, "agent.std_ceiling") is None
-    ),
+    "agent.std_ceiling": _equals(None),
+    "agent.std_ceiling_frames": _always,  # only agent.std_ceiling (above) switched it on
     "env.cpu_recipe": _always,  # the per-task part of +profile=cpu; its values are under agent.* and eval.*
     "eval.interval": _equals(None),
 }

@@ -97,7 +97,6 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
         state.load_state_dict(resumed)
         set_rng_state(resumed["rng"], env)
         print(f"resuming {run_dir} at {state.frames:,} frames (iteration {state.iteration})")
-    update.set_frames(state.frames)  # the first rollout's std ceiling
     record_sitting(run_dir, cfg, state.frames)  # provenance.json: code, packages, machine, command
 
     # 3. the collector, the logs and the checkpoints
@@ -148,7 +147,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
             state.frames += batch.numel()
 
             t0 = time.perf_counter()
-            losses, aux_rows = update(batch, state.frames)
+            losses, aux_rows = update(batch)
             update_s = time.perf_counter() - t0
 
             stats = rollout_stats(

@@ -246,17 +246,6 @@ def test_resume_restores_both_optimisers_of_an_ssl_run(tmp_path):
     assert adam_steps(state["optimizer"]) == adam_steps(state["aux"]["optimizer"]) == {16}
 
 
-def test_the_std_ceiling_falls_with_the_frames_and_the_checkpoint_holds_the_capped_std(tmp_path):
-    run = tmp_path / "run"
-    ceiling = ["agent.std_ceiling=0.25", "total_frames=384"]  # falls from 1 at 230 frames to 0.25 at 346
-    train(compose_cfg(["+exp=bounce_ppo", *TINY, *ceiling, f"run_dir={run}"]))
-    # 128 frames per iteration: 1 after the first; after 256, 26 / 116 of the fall (log-linear); then 0.25
-    logged = rows(run / "train.csv")
-    assert [float(r["std_ceiling"]) for r in logged] == pytest.approx([1.0, 0.25 ** (26 / 116), 0.25])
-    log_std = load_checkpoint(run)["agent"]["policy_head.log_std"]
-    assert float(log_std.max()) <= math.log(0.25) + 1e-6
-
-
 def test_the_policy_encoders_latent_rank_is_logged_in_training_evaluations_and_evaluate(tmp_path):
     run = tmp_path / "run"
     train(compose_cfg(["+exp=find_ppo", *TINY, f"run_dir={run}"]))

@@ -1,6 +1,6 @@
 """The PPO update: entropy and log-std conventions, the paper's Eq. 2 with an SSL objective, the
-two optimisers, the auxiliary minibatches, the KL-adaptive learning rate, the CPU profile's
-settings and the ceiling on the standard deviation."""
+two optimisers, the auxiliary minibatches, the KL-adaptive learning rate and the CPU profile's
+settings."""
 
 import copy
 import math
@@ -25,14 +25,12 @@ from roto_trl.trainers.builders import (
     make_lr_schedule,
     make_optimizer,
     make_ppo_loss,
-    make_std_ceiling,
     make_train_env,
     make_update,
 )
 from roto_trl.trainers.loggers import read_csv
 from roto_trl.trainers.lr_schedule import kl_adaptive_lr, kl_k3
 from roto_trl.trainers.ppo import effective_rank, minibatch_keys, minibatch_loss, rollout_stats, saturation
-from roto_trl.trainers.std_ceiling import std_ceiling
 
 P, T, A = 6, 4, 3
 GAUSSIAN_ENTROPY_AT_UNIT_STD = 0.5 * math.log(2 * math.pi * math.e)  # 1.4189..., per dimension
@@ -221,7 +219,7 @@ def test_the_cpu_profile_gives_any_experiment_the_recipe_and_keeps_its_values(ex
 def test_the_cpu_profile_takes_its_per_task_settings_from_the_task():
     """One recipe per task, the same for every variant: Bounce's decays the weights (AdamW),
     Find's and Baoding's do not (plain Adam); Find's evaluates on 128 worlds (its 0/1 metric needs
-    them), Bounce's and Baoding's on 32; no variant has a std ceiling or another Adam eps;
+    them), Bounce's and Baoding's on 32; no variant has another Adam eps;
     Bounce's and Baoding's matrix products are ``auto`` (bfloat16 where the CPU has them), Find's
     float32."""
     agent = Agent(("prop",), P, A)
@@ -229,17 +227,15 @@ def test_the_cpu_profile_takes_its_per_task_settings_from_the_task():
     for exp in ("bounce_ppo", "bounce_fd", "find_ppo", "find_fd", "baoding_fd_mem"):
         cfg = compose_cfg([f"+exp={exp}", "+profile=cpu", "total_frames=2000000"])
         optimizer = make_optimizer(cfg, agent)
-        ceiling = make_std_ceiling(cfg, agent, optimizer)
-        window = None if ceiling is None else (ceiling.start, ceiling.final, ceiling.begin, ceiling.end)
         decay = optimizer.param_groups[0]["weight_decay"]
         eps = optimizer.param_groups[0]["eps"]
-        built[exp] = (type(optimizer).__name__, decay, eps, cfg.eval.num_envs, window, cfg.agent.precision)
+        built[exp] = (type(optimizer).__name__, decay, eps, cfg.eval.num_envs, cfg.agent.precision)
     assert built == {
-        "bounce_ppo": ("AdamW", 3.0, 1e-8, 32, None, "auto"),
-        "bounce_fd": ("AdamW", 3.0, 1e-8, 32, None, "auto"),
-        "find_ppo": ("Adam", 0.0, 1e-8, 128, None, "float32"),
-        "find_fd": ("Adam", 0.0, 1e-8, 128, None, "float32"),
-        "baoding_fd_mem": ("Adam", 0.0, 1e-8, 32, None, "auto"),
+        "bounce_ppo": ("AdamW", 3.0, 1e-8, 32, "auto"),
+        "bounce_fd": ("AdamW", 3.0, 1e-8, 32, "auto"),
+        "find_ppo": ("Adam", 0.0, 1e-8, 128, "float32"),
+        "find_fd": ("Adam", 0.0, 1e-8, 128, "float32"),
+        "baoding_fd_mem": ("Adam", 0.0, 1e-8, 32, "auto"),
     }
     assert compose_cfg(["+exp=bounce_ppo"]).agent.precision == "float32"  # the paper's run
     kept = compose_cfg(["+exp=bounce_ppo", "+profile=cpu", "agent.precision=float32"])
@@ -251,7 +247,6 @@ def test_the_cpu_profile_takes_its_per_task_settings_from_the_task():
     find = compose_cfg(["+exp=find_ppo", "+profile=cpu", "agent.weight_decay=1.0"])
     assert make_optimizer(find, agent).param_groups[0]["weight_decay"] == 1.0
     assert compose_cfg(["+exp=find_ppo", "+profile=cpu", "eval.num_envs=64"]).eval.num_envs == 64
-    assert compose_cfg(["+exp=find_ppo", "+profile=cpu", "agent.std_ceiling=null"]).agent.std_ceiling is None
     find = compose_cfg(["+exp=find_ppo", "+profile=cpu", "+env.overrides.num_threads=1"])
     env = make_eval_env(find)
     assert env.batch_size == torch.Size([128])
@@ -431,54 +426,6 @@ def test_the_initial_log_std_is_configurable_and_the_papers_is_zero():
 def test_mean_saturation_is_the_share_of_the_tanh_means_entries_past_0_9():
     # every run logs the saturation of the loc the policy wrote while acting: 2 of these 4 > 0.9
     assert saturation(torch.tensor([[0.95, -0.2], [-0.91, 0.9]])) == pytest.approx(0.5)
-
-
-# ---------------------------------------------------------------------------- the std ceiling
-
-
-def test_std_ceiling_by_hand():
-    # held at 1 up to 0.5 M, log-linear to 0.25 at 1.5 M: log 0.25 = -1.386, halfway -0.693 = log 0.5
-    assert std_ceiling(0, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(1.0)
-    assert std_ceiling(500_000, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(1.0)
-    assert std_ceiling(1_000_000, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(0.5)
-    assert std_ceiling(750_000, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(0.25**0.25)  # 0.7071
-    assert std_ceiling(1_500_000, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(0.25)
-    assert std_ceiling(3_000_000, 1.0, 0.25, 500_000, 1_500_000) == pytest.approx(0.25)  # stays after
-    assert std_ceiling(100, 2.0, 0.5, 0, 200) == pytest.approx(1.0)  # exp(init_log_std) may be any start
-
-
-def test_the_std_ceiling_holds_the_log_std_under_it_after_every_step_and_below_it_learns():
-    torch.manual_seed(0)
-    agent = Agent(("prop",), P, A)
-    cfg = compose_cfg(["+exp=bounce_ppo", "agent.std_ceiling=0.25", "total_frames=1000"])  # falls at 600-900
-    optimizer = make_optimizer(cfg, agent)
-    ceiling = make_std_ceiling(cfg, agent, optimizer)
-    log_std = agent.policy_head.log_std
-    assert ceiling.set_frames(600) == pytest.approx(1.0) and torch.all(log_std == 0.0)  # not yet falling
-    assert ceiling.set_frames(750) == pytest.approx(0.5)
-    assert torch.allclose(log_std, torch.full((A,), math.log(0.5)))  # projected at once
-    with torch.no_grad():
-        log_std[0] = -2.0  # under the ceiling: learns freely
-    for _ in range(3):  # gradients that push every log-std up
-        optimizer.zero_grad()
-        (-agent.policy_head.log_std.sum()).backward()
-        optimizer.step()
-    assert torch.allclose(log_std[1:], torch.full((A - 1,), math.log(0.5)))  # held at the ceiling
-    assert -2.0 < float(log_std[0].detach()) < math.log(0.5)  # rose by three steps of lr
-    _, scale = agent.policy_head(torch.zeros(1, agent.encoder.latent_dim))
-    assert float(scale.detach().max()) == pytest.approx(0.5)
-    assert make_std_ceiling(compose_cfg(["+exp=bounce_ppo"]), agent, optimizer) is None  # off by default
-    for bad in ("0", "'low'"):
-        with pytest.raises(ValueError, match=r"agent\.std_ceiling"):
-            compose_cfg(["+exp=bounce_ppo", f"agent.std_ceiling={bad}"])
-
-
-def test_the_std_ceiling_falls_over_the_same_fractions_of_any_run():
-    agent = Agent(("prop",), P, A)
-    for total, window in ((2_000_000, (1_200_000, 1_800_000)), (10_000_000, (6_000_000, 9_000_000))):
-        cfg = compose_cfg(["+exp=bounce_ppo", "agent.std_ceiling=0.25", f"total_frames={total}"])
-        ceiling = make_std_ceiling(cfg, agent, make_optimizer(cfg, agent))
-        assert (ceiling.begin, ceiling.end) == window
 
 
 def test_effective_rank_by_hand():

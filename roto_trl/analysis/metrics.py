@@ -35,7 +35,6 @@ NAMES: dict[str, tuple[str, str]] = {
     "clip_fraction_median": ("clipped ratio fraction, median over minibatches", "fraction"),
     "grad_norm": ("gradient norm before clipping", ""),
     "lr": ("learning rate", ""),
-    "std_ceiling": ("ceiling on the policy's std", "std"),
     "mean_saturation": ("policy mean's entries past 0.9", "fraction"),
     "fps": ("training speed", "frames/s"),
     "wall_time": ("wall time", "s"),

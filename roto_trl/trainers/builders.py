@@ -1,5 +1,5 @@
 """Config -> objects, in one place: envs, agent, PPO loss, advantage, collector, buffer, optimiser,
-learning-rate schedule, the std ceiling, the self-supervised objective and the update that holds
+learning-rate schedule, the self-supervised objective and the update that holds
 them.
 
 ``cfg`` is a typed training config (``roto_trl.config.typed_config``; a saved run's through
@@ -8,7 +8,6 @@ them.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import torch
@@ -35,7 +34,6 @@ from roto_trl.trainers.auxiliary import AuxiliaryUpdate
 from roto_trl.trainers.lr_schedule import KLAdaptiveLR
 from roto_trl.trainers.ppo import PPOUpdate
 from roto_trl.trainers.schedule import frames_per_iteration
-from roto_trl.trainers.std_ceiling import StdCeiling
 
 EVAL_SEED_OFFSET = 1_000_003  # evaluation worlds never share reset draws with training worlds
 
@@ -211,17 +209,6 @@ def make_lr_schedule(cfg: DictConfig, optimizer: torch.optim.Optimizer) -> KLAda
     return None
 
 
-def make_std_ceiling(cfg: DictConfig, agent: Agent, optimizer: torch.optim.Optimizer) -> StdCeiling | None:
-    """The falling ceiling on the policy's standard deviation (``agent.std_ceiling``), projected
-    after every step of ``optimizer``, or None (null: no ceiling but the log-std clamp)."""
-    a = cfg.agent
-    if a.std_ceiling is None:
-        return None
-    log_std = agent.policy_head.log_std
-    ceiling = StdCeiling.over_run(log_std, math.exp(a.init_log_std), a.std_ceiling, cfg.total_frames)
-    return ceiling.attach(optimizer)
-
-
 def make_aux_update(cfg: DictConfig, agent: Agent, env: TransformedEnv) -> AuxiliaryUpdate | None:
     """The configured self-supervised objective (``cfg.ssl``) with its optimiser and memory, or None.
 
@@ -273,6 +260,5 @@ def make_update(cfg: DictConfig, agent: Agent, env: TransformedEnv) -> PPOUpdate
         minibatches=cfg.agent.minibatches,
         max_grad_norm=cfg.agent.max_grad_norm,
         lr_schedule=make_lr_schedule(cfg, optimizer),
-        std_ceiling=make_std_ceiling(cfg, agent, optimizer),
         aux=make_aux_update(cfg, agent, env),
     )

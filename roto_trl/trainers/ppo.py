@@ -96,7 +96,6 @@ class PPOUpdate:
         buffer: the rollout buffer, sampled in ``minibatches`` disjoint minibatches per epoch.
         epochs, minibatches, max_grad_norm: le, mb and the gradient-norm clip.
         lr_schedule: the KL-adaptive rate (``KLAdaptiveLR``), or None for a fixed rate.
-        std_ceiling: the falling ceiling on the policy's std (``StdCeiling``), or None.
         aux: the self-supervised objective (``AuxiliaryUpdate``), or None for PPO alone.
     """
 
@@ -112,7 +111,6 @@ class PPOUpdate:
         minibatches: int,
         max_grad_norm: float,
         lr_schedule=None,
-        std_ceiling=None,
         aux=None,
     ) -> None:
         self.agent, self.loss_fn, self.advantage = agent, loss_fn, advantage
@@ -122,7 +120,7 @@ class PPOUpdate:
             int(minibatches),
             float(max_grad_norm),
         )
-        self.lr_schedule, self.std_ceiling, self.aux = lr_schedule, std_ceiling, aux
+        self.lr_schedule, self.aux = lr_schedule, aux
         self.params = [p for group in optimizer.param_groups for p in group["params"]]
         self.keys = minibatch_keys(agent, loss_fn)  # what the buffer keeps of each rollout
 
@@ -201,18 +199,10 @@ class PPOUpdate:
         means["lr"] = float(self.optimizer.param_groups[0]["lr"])
         return means, aux_rows
 
-    def set_frames(self, frames: int) -> dict[str, float]:
-        """Bring the frame-scheduled parts (the std ceiling) to ``frames`` trained; returns what
-        to log of them."""
-        return {} if self.std_ceiling is None else {"std_ceiling": self.std_ceiling.set_frames(frames)}
-
-    def __call__(self, batch: TensorDictBase, frames: int) -> tuple[dict[str, float], list[dict[str, float]]]:
-        """Store the rollout ``batch``, update on it (``update``) and move the schedules to the
-        ``frames`` trained after it."""
+    def __call__(self, batch: TensorDictBase) -> tuple[dict[str, float], list[dict[str, float]]]:
+        """Store the rollout ``batch`` and update on it (``update``)."""
         self.store(batch)
-        losses, aux_rows = self.update()
-        losses.update(self.set_frames(frames))
-        return losses, aux_rows
+        return self.update()
 
     def state_dict(self) -> dict:
         """What a checkpoint keeps of the update: the agent, the optimiser and the SSL objective."""
