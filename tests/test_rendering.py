@@ -1,6 +1,5 @@
 """Offscreen frames and the episode recorder (skipped, with the reason, where no GL is available)."""
 
-
 import numpy as np
 import pytest
 from frame_strip import main as frame_strip_main
