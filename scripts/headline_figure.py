@@ -15,7 +15,6 @@ and grouped as the analysis tools do (``analysis.runs``).
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
@@ -29,7 +28,7 @@ from matplotlib.ticker import NullFormatter
 from roto_trl.analysis.metrics import describe
 from roto_trl.analysis.plots import FRAMES, save_figure
 from roto_trl.analysis.runs import by_experiment, countable, find_runs, headline_of
-from roto_trl.analysis.table import load_reference, reference_range
+from roto_trl.analysis.table import load_reference, reference_curve
 from roto_trl.trainers.loggers import read_csv
 
 
@@ -66,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
             seeds = f"{len(group_runs)} seed{'s' if len(group_runs) > 1 else ''}"
             ax.plot(frames, mean, color=f"C{i}", label=f"ours: {group} ({seeds})")
             ax.fill_between(frames, low, high, color=f"C{i}", alpha=0.15)
-            theirs = reference_range(reference, group_runs[0].exp_name, headline, up_to=math.inf)
+            theirs = reference_curve(reference, group_runs[0].exp_name, headline)
             if theirs:
                 at, their_mean, best = theirs
                 exp = group_runs[0].exp_name

@@ -100,10 +100,10 @@ def load_reference(path: Path | None = None) -> Reference:
     return reference
 
 
-def reference_range(reference: Reference, exp: str, metric: str, up_to: float) -> tuple | None:
-    """The authors' curve of ``exp``'s ``metric`` up to ``up_to`` frames: ``(frames, mean, max)``
-    arrays (their seeds' mean and best), or None where they kept none."""
-    curve = {f: v for f, v in sorted(reference.get((exp, metric), {}).items()) if f <= up_to}
+def reference_curve(reference: Reference, exp: str, metric: str) -> tuple | None:
+    """The authors' whole curve of ``exp``'s ``metric``: ``(frames, mean, max)`` arrays (their
+    seeds' mean and best), or None where they kept none."""
+    curve = dict(sorted(reference.get((exp, metric), {}).items()))
     if not curve:
         return None
     frames = np.asarray(list(curve), dtype=float)
