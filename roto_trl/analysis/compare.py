@@ -1,6 +1,6 @@
 """Two sets of runs that differ in one choice, paired by seed: the table a default is decided on.
 
-A change to the recipe (the precision, a std ceiling, Adam's eps) is judged on the same seeds run
+A change to the recipe (the precision, Adam's eps, the weight decay) is judged on the same seeds run
 both ways (docs/recipe.md): a seed's pair shares its worlds and its first weights, so
 the difference of the pair carries much less of the seed-to-seed spread than two means do.
 
