@@ -365,13 +365,15 @@ def cmd_compare(runs: list[Run], out: Path, args) -> list[Path]:
 def cmd_study(runs: list[Run], out: Path, args) -> list[Path]:
     """A task's study: final policies scored alike, IQM and probability of improvement with
     intervals (rliable), performance profiles, curves beside the authors', the paper's claims."""
-    from roto_trl.analysis.study import score_run, write_study
+    from roto_trl.analysis.study import REPS, score_run, write_study
 
     task = one_task(runs, "study")
     if args.score:
         for run in runs:
             for path in score_run(run.path, args.episodes, mi=not args.no_mi):
                 print(f"scored: {path}", flush=True)
+    print(f"analyse study: {len(runs)} runs of {task}, each interval from {REPS:,} bootstrap resamples "
+          "(a few minutes)", flush=True)  # fmt: skip
     return write_study(runs, task, out)
 
 

@@ -8,7 +8,7 @@ import pytest
 from helpers import TRAIN
 from hydra import compose, initialize_config_dir
 
-from roto_trl.analysis.study import improvement, iqm_interval, oriented, verdict
+from roto_trl.analysis.study import improvement, iqm_curve, iqm_interval, oriented, verdict
 from roto_trl.utils.resources import resource_dir
 
 
@@ -23,6 +23,16 @@ def test_iqm_and_probability_of_improvement_by_hand():
     p, _, _ = improvement(np.array([1.0, 2.0, 3.0]), np.array([1.0, 2.0, 0.0]), reps=500)
     assert p == pytest.approx(7 / 9)
     assert list(oriented(np.array([1.0, 2.0]), "find_time_1cm")) == [-1.0, -2.0]  # sooner is better
+
+
+def test_a_curves_band_resamples_whole_runs_and_trims_each_frame():
+    # frame 0: runs 1..8 (IQM 4.5, as above); frame 1: every run at 2.0, a band of no width;
+    # frame 2: one outlying run of 100 among seven 1.0s is trimmed away, IQM 1.0
+    curve = np.stack([np.arange(1.0, 9.0), np.full(8, 2.0), np.r_[np.ones(7), 100.0]], axis=1)
+    points, lows, highs = iqm_curve(curve, reps=500)
+    assert points == pytest.approx([4.5, 2.0, 1.0])
+    assert lows[1] == highs[1] == 2.0
+    assert np.all(lows <= points) and np.all(points <= highs) and highs[0] > lows[0]
 
 
 def test_verdicts_from_the_interval():

@@ -28,6 +28,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+import scipy.stats
 from rliable import library as rly
 from rliable import metrics
 
@@ -157,6 +158,23 @@ def iqm_interval(values: np.ndarray, seed: int = 0, reps: int = REPS) -> tuple[f
     )
     low, high = np.ravel(interval["x"])
     return float(np.ravel(point["x"])[0]), float(low), float(high)
+
+
+def _iqm_per_frame(x: np.ndarray) -> np.ndarray:
+    """The IQM of each frame's runs: ``x`` ``[runs, 1, F]`` -> ``[F]``."""
+    return scipy.stats.trim_mean(x[:, 0, :], proportiontocut=0.25, axis=0)
+
+
+def iqm_curve(
+    curve: np.ndarray, seed: int = 0, reps: int = REPS
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A learning curve's IQM over runs at each frame and its 95 % band, from ``curve``
+    ``[runs, F]``: each resample draws whole runs (rliable's curves), and all ``F`` frames'
+    IQMs come from one vectorised trim per resample. Returns ``(points, lows, highs)``, each ``[F]``."""
+    point, interval = rly.get_interval_estimates(
+        {"x": curve[:, None, :]}, _iqm_per_frame, reps=reps, random_state=np.random.RandomState(seed)
+    )
+    return np.asarray(point["x"]), np.asarray(interval["x"][0]), np.asarray(interval["x"][1])
 
 
 def improvement(x: np.ndarray, y: np.ndarray, seed: int = 0, reps: int = REPS) -> tuple[float, float, float]:
@@ -338,9 +356,7 @@ def _write_csv(path: Path, rows: list[dict]) -> Path:
 def _curves_figure(scores, task, headline, reference, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
     for i, (variant, s) in enumerate(scores.items()):
-        points, lows, highs = zip(
-            *(iqm_interval(s.curve[:, f], f) for f in range(len(s.frames))), strict=True
-        )
+        points, lows, highs = iqm_curve(s.curve)
         ax.plot(s.frames, points, color=f"C{i}", label=f"{variant} ({len(s.seeds)} seeds)")
         ax.fill_between(s.frames, lows, highs, color=f"C{i}", alpha=0.15)
         theirs = reference.get((f"{task}_{variant}", headline), {})
