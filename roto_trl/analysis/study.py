@@ -142,22 +142,15 @@ def _json(path: Path) -> dict | None:
 # -- statistics
 
 
-def _iqm(x: np.ndarray) -> np.ndarray:
-    return np.array([metrics.aggregate_iqm(x)])
-
-
 def oriented(values: np.ndarray, metric: str) -> np.ndarray:
     """Values turned so that higher is better (a time to a tolerance is negated)."""
     return -values if metric.startswith(LOWER_IS_BETTER) else values
 
 
 def iqm_interval(values: np.ndarray, seed: int = 0, reps: int = REPS) -> tuple[float, float, float]:
-    """The interquartile mean over runs ``[R]`` and its 95 % bootstrap interval."""
-    point, interval = rly.get_interval_estimates(
-        {"x": values.reshape(-1, 1)}, _iqm, reps=reps, random_state=np.random.RandomState(seed)
-    )
-    low, high = np.ravel(interval["x"])
-    return float(np.ravel(point["x"])[0]), float(low), float(high)
+    """The interquartile mean over runs ``[R]`` and its 95 % bootstrap interval: a one-frame curve."""
+    point, low, high = iqm_curve(values.reshape(-1, 1), seed, reps)
+    return float(point[0]), float(low[0]), float(high[0])
 
 
 def _iqm_per_frame(x: np.ndarray) -> np.ndarray:
