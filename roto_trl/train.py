@@ -73,13 +73,16 @@ def train(cfg: DictConfig, overrides: Sequence[str] = ()) -> Path:
             save_config(cfg, run_dir)  # an extended budget
             rewind(run_dir, resumed)  # the logs and best.pt back to the checkpoint
         with StopRequests() as stop:
-            return run_training(cfg, run_dir, resumed, stop)
+            return run_training(cfg, run_dir, resumed, stop, overrides)
     finally:
         lock.release()
 
 
-def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: StopRequests) -> Path:
-    """The run itself, in a prepared and locked ``run_dir``; stops early on ``stop``'s signal."""
+def run_training(
+    cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: StopRequests, overrides: Sequence[str]
+) -> Path:
+    """The run itself, in a prepared and locked ``run_dir``; stops early on ``stop``'s signal.
+    ``overrides``: the command line's, for the run's record of how it was made."""
     seed_everything(cfg.seed)
     torch.set_num_threads(cfg.torch_threads or len(os.sched_getaffinity(0)))
 
@@ -97,7 +100,7 @@ def run_training(cfg: DictConfig, run_dir: Path, resumed: dict | None, stop: Sto
         state.load_state_dict(resumed)
         set_rng_state(resumed["rng"], env)
         print(f"resuming {run_dir} at {state.frames:,} frames (iteration {state.iteration})")
-    record_sitting(run_dir, cfg, state.frames)  # provenance.json: code, packages, machine, command
+    record_sitting(run_dir, cfg, state.frames, overrides)  # provenance.json: code, packages, machine, command
 
     # 3. the collector, the logs and the checkpoints
     collector = build.make_collector(cfg, env, agent)

@@ -4,6 +4,7 @@ count."""
 
 import math
 import pickle
+import shlex
 import signal
 from pathlib import Path
 
@@ -219,16 +220,16 @@ def test_a_run_stopped_before_its_first_checkpoint_says_how_to_start_it_again(tm
     from roto_trl.trainers.errors import NonFiniteError
 
     run = tmp_path / "run"
+    overrides = ["+exp=find_ppo", *TINY, f"run_dir={run}", "+env.overrides.reward_scales.dist=1e308"]
     with pytest.raises(NonFiniteError) as stop:  # the first rollout's returns are inf
-        train(
-            compose_cfg(["+exp=find_ppo", *TINY, f"run_dir={run}", "+env.overrides.reward_scales.dist=1e308"])
-        )
+        train(compose_cfg(overrides), overrides)
     assert stop.value.saved_frames is None
     assert stop.value.what_now.startswith("No checkpoint was written before it")
-    with pytest.raises(
-        FileNotFoundError, match=r"stopped before its first checkpoint.*start it again with its command: "
-    ):
+    with pytest.raises(FileNotFoundError, match=r"stopped before its first checkpoint") as missing:
         train(compose_cfg([f"resume={run}"]), [f"resume={run}"])
+    # the run's own overrides, not the process's command line (a multirun worker's is the launcher's)
+    command = shlex.join(["python", "roto_trl/train.py", *overrides])
+    assert str(missing.value).endswith(f"start it again with its command: {command}")
 
 
 @pytest.mark.parametrize("override", ["agent.lr=10", "ssl.coeff=1e9"])

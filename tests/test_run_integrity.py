@@ -318,11 +318,35 @@ def test_a_run_records_how_it_was_made_at_every_sitting(tmp_path):
     from roto_trl.trainers.provenance import read_provenance
 
     run = tmp_path / "run"
-    train(compose_cfg(tiny(run)))
-    train(compose_cfg([f"resume={run}", "total_frames=384"]), ["total_frames=384"])
+    train(compose_cfg(tiny(run)), tiny(run))
+    train(compose_cfg([f"resume={run}", "total_frames=384"]), [f"resume={run}", "total_frames=384"])
     first, resumed = read_provenance(run)
     assert (first["at_frames"], resumed["at_frames"]) == (0, 256)
+    assert (first["overrides"], resumed["overrides"]) == (tiny(run), [f"resume={run}", "total_frames=384"])
     assert len(first["commit"]) == 40 and isinstance(first["dirty"], bool)
     assert first["versions"]["torch"] == version("torch") and first["versions"]["mujoco"] == version("mujoco")
     assert first["precision"] == "float32" and first["torch_threads"] == 1 and first["cpu"]
     assert first["command"] == [Path(sys.orig_argv[0]).name, *sys.orig_argv[1:]]
+
+
+def test_a_checkout_is_dirty_for_changed_code_not_for_a_log_beside_it(tmp_path):
+    from roto_trl.trainers.provenance import git_state
+
+    def git(*args):
+        identity = ["-c", "user.name=t", "-c", "user.email=t@t"]
+        subprocess.run(["git", "-C", str(tmp_path), *identity, *args], check=True)
+
+    (tmp_path / "roto_trl").mkdir()
+    (tmp_path / "roto_trl" / "train.py").write_text("x = 1\n")
+    git("init", "-q")
+    git("add", ".")
+    git("commit", "-q", "-m", "code")
+    assert git_state(tmp_path)["dirty"] is False
+    (tmp_path / "study.log").write_text("a log\n")  # an untracked output beside the code
+    assert git_state(tmp_path)["dirty"] is False
+    (tmp_path / "roto_trl" / "extra.py").write_text("y = 2\n")  # untracked code
+    assert git_state(tmp_path)["dirty"] is True
+    (tmp_path / "roto_trl" / "extra.py").unlink()
+    (tmp_path / "roto_trl" / "train.py").write_text("x = 2\n")  # a tracked change
+    state = git_state(tmp_path)
+    assert state["dirty"] is True and len(state["commit"]) == 40

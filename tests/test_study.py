@@ -9,6 +9,7 @@ from helpers import TRAIN
 from hydra import compose, initialize_config_dir
 
 from roto_trl.analysis.study import improvement, iqm_curve, iqm_interval, oriented, verdict
+from roto_trl.trainers.provenance import read_provenance
 from roto_trl.utils.resources import resource_dir
 
 
@@ -67,6 +68,9 @@ def test_a_study_runs_skips_what_is_finished_and_is_analysed(tmp_path):
     assert first.returncode == 0, first.stderr[-2000:]
     runs = sorted(p.name for p in (tmp_path / "study").iterdir() if p.is_dir())
     assert runs == ["find_fd-s100", "find_fd-s101", "find_ppo-s100", "find_ppo-s101"]
+    # each job records its own overrides (its command line is the launcher's worker)
+    job = read_provenance(tmp_path / "study" / "find_fd-s101")[0]["overrides"]
+    assert {"+study=find", "seed=101", "exp=find_fd", "total_frames=128"} <= set(job)
     again = subprocess.run([*TRAIN, *study], capture_output=True, text=True, timeout=600)
     assert again.returncode == 0 and again.stdout.count("nothing to train, it is finished") == 4
     out = tmp_path / "out"

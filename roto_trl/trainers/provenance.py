@@ -4,7 +4,9 @@ each resume), so that a results table can tell runs of different code, packages 
 A record holds the git commit of the code and whether its tree had uncommitted changes, the
 versions of Python, torch, torchrl, tensordict, MuJoCo and numpy, the CPU model and whether it
 multiplies bfloat16 in hardware, the resolved matrix-product precision, the torch and physics
-thread counts, the host, the start time and the command line with its overrides.
+thread counts, the host, the start time, the command line as typed and the run's own Hydra
+overrides (in a multirun the command line is the launcher's worker, so only the overrides say what
+the job was given).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import os
 import platform
 import subprocess
 import sys
+from collections.abc import Sequence
 from datetime import datetime
 from importlib import metadata
 from pathlib import Path
@@ -27,11 +30,14 @@ from roto_trl.modules.networks import cpu_has_bfloat16
 FILE = "provenance.json"
 PACKAGES = ("torch", "torchrl", "tensordict", "mujoco", "numpy", "hydra-core", "roto-trl")
 SOURCE_DIR = Path(__file__).resolve().parents[2]  # the checkout's root, when the code is one
+# where an untracked file can change what a run does; a log beside the checkout cannot
+SOURCE_PATHS = ("roto_trl/", "conf/", "assets/", "hydra_plugins/")
 
 
 def git_state(root: Path = SOURCE_DIR) -> dict[str, Any]:
-    """``commit`` (or None outside a git checkout) and ``dirty`` (uncommitted changes to tracked
-    files, or untracked files, in the checkout)."""
+    """``commit`` (or None outside a git checkout) and ``dirty``: uncommitted changes to tracked
+    files, or untracked files among the code, config and models (``SOURCE_PATHS``); an untracked
+    log or output elsewhere in the checkout does not count."""
     try:
         commit = subprocess.run(
             ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
@@ -43,7 +49,9 @@ def git_state(root: Path = SOURCE_DIR) -> dict[str, Any]:
         return {"commit": None, "dirty": None}
     if commit.returncode != 0:
         return {"commit": None, "dirty": None}
-    return {"commit": commit.stdout.strip(), "dirty": bool(status.stdout.strip())}
+    changed = [line for line in status.stdout.splitlines() if line.strip()]
+    dirty = any(not line.startswith("??") or line[3:].startswith(SOURCE_PATHS) for line in changed)
+    return {"commit": commit.stdout.strip(), "dirty": dirty}
 
 
 def cpu_model() -> str:
@@ -73,8 +81,9 @@ def physics_threads(cfg: DictConfig) -> int:
     return int(overrides["num_threads"]) if "num_threads" in overrides else len(os.sched_getaffinity(0))
 
 
-def sitting_record(cfg: DictConfig, frames: int) -> dict[str, Any]:
-    """What this sitting of the run is made of, starting at ``frames``."""
+def sitting_record(cfg: DictConfig, frames: int, overrides: Sequence[str]) -> dict[str, Any]:
+    """What this sitting of the run is made of, starting at ``frames``; ``overrides`` are the run's
+    own ``key=value`` arguments (Hydra's task overrides: a multirun job's include its sweep values)."""
     return {
         "started": datetime.now().astimezone().isoformat(timespec="seconds"),
         "at_frames": int(frames),
@@ -88,14 +97,15 @@ def sitting_record(cfg: DictConfig, frames: int) -> dict[str, Any]:
         "device": str(cfg.device),
         "host": platform.node(),
         "command": [Path(sys.orig_argv[0]).name, *sys.orig_argv[1:]],  # as typed, before Hydra
+        "overrides": list(overrides),
     }
 
 
-def record_sitting(run_dir: Path, cfg: DictConfig, frames: int) -> dict[str, Any]:
+def record_sitting(run_dir: Path, cfg: DictConfig, frames: int, overrides: Sequence[str]) -> dict[str, Any]:
     """Append this sitting's record to ``<run_dir>/provenance.json``; returns the record."""
     path = Path(run_dir) / FILE
     sittings = read_provenance(run_dir)
-    record = sitting_record(cfg, frames)
+    record = sitting_record(cfg, frames, overrides)
     path.write_text(json.dumps([*sittings, record], indent=2))
     return record
 

@@ -127,9 +127,12 @@ def no_checkpoint(run_dir: Path, checkpoint: Path) -> str:
     if checkpoint.name != LATEST:
         return f"resume: no checkpoint at {checkpoint}"
     sittings = read_provenance(run_dir)
-    command = (
-        shlex.join(sittings[0]["command"]) if sittings else f"python roto_trl/train.py ... run_dir={run_dir}"
-    )
+    if not sittings:
+        command = f"python roto_trl/train.py ... run_dir={run_dir}"
+    elif "overrides" in sittings[0]:  # a multirun job's command line is its launcher worker's
+        command = shlex.join(["python", "roto_trl/train.py", *sittings[0]["overrides"]])
+    else:  # a run recorded before the overrides were
+        command = shlex.join(sittings[0]["command"])
     return (
         f"resume={run_dir}: the run stopped before its first checkpoint, so there is nothing to continue; "
         f"start it again with its command: {command}"
