@@ -350,7 +350,8 @@ def _curves_figure(scores, task, headline, reference, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(7.5, 4.5))
     for i, (variant, s) in enumerate(scores.items()):
         points, lows, highs = iqm_curve(s.curve)
-        ax.plot(s.frames, points, color=f"C{i}", label=f"{variant} ({len(s.seeds)} seeds)")
+        seeds = f"{len(s.seeds)} seed{'s' if len(s.seeds) > 1 else ''}"
+        ax.plot(s.frames, points, color=f"C{i}", label=f"{variant} ({seeds})")
         ax.fill_between(s.frames, lows, highs, color=f"C{i}", alpha=0.15)
         theirs = reference.get((f"{task}_{variant}", headline), {})
         near = {f: v for f, v in theirs.items() if f <= 2 * s.frames[-1]}
