@@ -8,7 +8,15 @@ import pytest
 from helpers import TRAIN
 from hydra import compose, initialize_config_dir
 
-from roto_trl.analysis.study import improvement, iqm_curve, iqm_interval, oriented, verdict
+from roto_trl.analysis.study import (
+    VariantScores,
+    claim_rows,
+    improvement,
+    iqm_curve,
+    iqm_interval,
+    oriented,
+    verdict,
+)
 from roto_trl.trainers.provenance import read_provenance
 from roto_trl.utils.resources import resource_dir
 
@@ -41,6 +49,32 @@ def test_verdicts_from_the_interval():
     assert verdict(0.4, 0.7) == "not resolved"
     assert verdict(0.4, 0.7, same=True) == "not resolved (no difference found)"
     assert verdict(0.55, 0.9, same=True) == "contradicted"
+
+
+def test_a_claim_is_judged_under_each_evaluation_action_and_the_mi_once():
+    def scores(variant, ours, authors, mi):
+        final = {
+            "ours": {"bounces_per_10s": np.array(ours)},
+            "authors": {"bounces_per_10s": np.array(authors)},
+        }
+        return VariantScores(variant, [100, 101, 102], final, np.array(mi), np.zeros(1), np.zeros((3, 1)))
+
+    # FD beats PPO in every pair with our action, loses every pair with the authors': the
+    # same runs, opposite verdicts; the MI has no action
+    study = {
+        "ppo": scores("ppo", [10.0, 11.0, 12.0], [9.0, 9.5, 10.0], [1.0, 1.1, 1.2]),
+        "fd": scores("fd", [20.0, 21.0, 22.0], [1.0, 2.0, 3.0], [1.5, 1.6, 1.7]),
+    }
+    rows = {(r["claim"], r["action"]): r for r in claim_rows("bounce", study, "bounces_per_10s", reps=500)}
+    fd_over_ppo = "FD outperforms RL-only (Sec. 5, RL+SSL)"
+    assert rows[(fd_over_ppo, "ours")]["verdict"] == "supported" and rows[(fd_over_ppo, "ours")]["poi"] == 1.0
+    assert rows[(fd_over_ppo, "authors")]["verdict"] == "contradicted"
+    mi_rows = [r for r in rows.values() if r["metric"] == "mi" and r["x"] == "fd"]
+    assert [(r["action"], r["verdict"]) for r in mi_rows] == [("", "supported")]
+    assert (
+        rows[("FD beats TR, the other leading method (Sec. 5, RL+SSL)", "ours")]["verdict"]
+        == "not yet measured"
+    )
 
 
 @pytest.mark.parametrize("task", ["bounce", "find", "baoding"])
