@@ -39,18 +39,17 @@ def git_state(root: Path = SOURCE_DIR) -> dict[str, Any]:
     files, or untracked files among the code, config and models (``SOURCE_PATHS``); an untracked
     log or output elsewhere in the checkout does not count."""
     try:
-        commit = subprocess.run(
-            ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10
-        )
-        status = subprocess.run(
-            ["git", "-C", str(root), "status", "--porcelain"], capture_output=True, text=True, timeout=10
-        )
+
+        def git(*args: str) -> subprocess.CompletedProcess:
+            return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10)
+
+        commit, status = git("rev-parse", "HEAD"), git("status", "--porcelain", "-z")
     except (OSError, subprocess.TimeoutExpired):
         return {"commit": None, "dirty": None}
     if commit.returncode != 0:
         return {"commit": None, "dirty": None}
-    changed = [line for line in status.stdout.splitlines() if line.strip()]
-    dirty = any(not line.startswith("??") or line[3:].startswith(SOURCE_PATHS) for line in changed)
+    changed = [entry for entry in status.stdout.split("\0") if entry]  # "XY path", paths unquoted
+    dirty = any(not entry.startswith("??") or entry[3:].startswith(SOURCE_PATHS) for entry in changed)
     return {"commit": commit.stdout.strip(), "dirty": dirty}
 
 
