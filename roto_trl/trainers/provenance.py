@@ -34,16 +34,16 @@ SOURCE_DIR = Path(__file__).resolve().parents[2]  # the checkout's root, when th
 SOURCE_PATHS = ("roto_trl/", "conf/", "assets/", "hydra_plugins/")
 
 
+def _git(root: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10)
+
+
 def git_state(root: Path = SOURCE_DIR) -> dict[str, Any]:
     """``commit`` (or None outside a git checkout) and ``dirty``: uncommitted changes to tracked
     files, or untracked files among the code, config and models (``SOURCE_PATHS``); an untracked
     log or output elsewhere in the checkout does not count."""
     try:
-
-        def git(*args: str) -> subprocess.CompletedProcess:
-            return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=10)
-
-        commit, status = git("rev-parse", "HEAD"), git("status", "--porcelain", "-z")
+        commit, status = _git(root, "rev-parse", "HEAD"), _git(root, "status", "--porcelain", "-z")
     except (OSError, subprocess.TimeoutExpired):
         return {"commit": None, "dirty": None}
     if commit.returncode != 0:
