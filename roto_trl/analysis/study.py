@@ -11,7 +11,7 @@ metric: the interquartile mean of the final policies with 95 % stratified-bootst
 the probability of improvement of each variant over PPO (prop-tactile), performance profiles,
 IQM learning curves with their bands beside the authors' curves, and the claims table
 (``CLAIMS``): for each claim, the comparison and a verdict from the interval of the probability
-of improvement.
+of improvement, given once each variant has ``VERDICT_SEEDS`` seeds.
 """
 
 from __future__ import annotations
@@ -48,6 +48,12 @@ SCORE_EPISODES = 1000
 SCORES = {"ours": ("score.json", "deterministic"), "authors": ("score-gaussian_mean.json", "gaussian_mean")}
 MI_FILE, MI_SAMPLES, MI_PCA, MI_K, MI_WORLDS = "mi.json", 5000, 13, 4, 32
 REPS = 20_000  # bootstrap resamples of the intervals (rliable's default is 50,000; the CI moves by < 0.01)
+# A verdict needs this many seeds of each variant: the fewest with which even a complete separation
+# (every run of X above every run of Y) is told from chance at the 5 % level by the exact rank test
+# (two-sided 2 / C(8, 4) = 0.029; with 3 seeds 2 / C(6, 3) = 0.10). With fewer, the bootstrap
+# interval of P(X > Y) collapses onto 1.0 or 0.0 whenever the few runs separate, and would
+# call a claim decided on two seeds.
+VERDICT_SEEDS = 4
 LOWER_IS_BETTER = ("find_time_",)  # metrics where less is better: compared the other way round
 warnings.filterwarnings("ignore", category=FutureWarning, module="arch")  # rliable's RandomState
 
@@ -290,7 +296,12 @@ def claim_rows(task: str, scores: dict[str, VariantScores], headline: str, reps:
                 continue
             a, b = (oriented(v, metric) for v in values)
             p, low, high = improvement(a, b, reps=reps)
-            judged = verdict(low, high, claim.kind == "same")
+            seeds = min(len(a), len(b))
+            judged = (
+                verdict(low, high, claim.kind == "same")
+                if seeds >= VERDICT_SEEDS
+                else f"not resolved ({seeds} seeds; a verdict needs {VERDICT_SEEDS})"
+            )
             rows.append({**row, "poi": p, "poi_low": low, "poi_high": high, "verdict": judged})
     return rows
 
