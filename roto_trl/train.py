@@ -38,9 +38,15 @@ from roto_trl.config import check_run_name, checked_config, hydra_overrides, pla
 from roto_trl.trainers import builders as build
 from roto_trl.trainers.checkpoint import BEST, LATEST, RunCheckpoints
 from roto_trl.trainers.divergence import DivergenceWatch
-from roto_trl.trainers.errors import NonFiniteError, TrainingInterrupted, exit_with_report, report_failed_job
+from roto_trl.trainers.errors import (
+    NonFiniteError,
+    TrainingInterrupted,
+    end_orphaned_job,
+    exit_with_report,
+    report_failed_job,
+)
 from roto_trl.trainers.evaluation import evaluate, selection_key
-from roto_trl.trainers.interrupts import StopRequests
+from roto_trl.trainers.interrupts import StopRequests, orphaned
 from roto_trl.trainers.loggers import MetricLogger
 from roto_trl.trainers.ppo import rollout_stats
 from roto_trl.trainers.progress import TrainingProgress
@@ -228,7 +234,8 @@ def main(cfg: DictConfig) -> float:
     input or a run directory in use (2), a NaN/inf stop (3), a failed write such as a full disk
     (1), SIGINT/SIGTERM (128 + the signal, after writing ``latest.pt``). In a multirun the error
     propagates instead: Hydra's launcher records the job as failed and the sweeper goes on with
-    the next trial, where ``sys.exit`` would end the whole sweep.
+    the next trial, where ``sys.exit`` would end the whole sweep; a job whose sweep was killed
+    (its launcher is gone) reports in one line and ends its worker process.
     """
     hydra_cfg = HydraConfig.get()
     in_sweep = hydra_cfg.mode == RunMode.MULTIRUN
@@ -242,7 +249,11 @@ def main(cfg: DictConfig) -> float:
             exit_with_report(err)  # one line and the exit status; a bug keeps its traceback
         if not isinstance(err, KeyboardInterrupt):
             report_failed_job(cfg, err)  # error.txt in its run directory, and one line of its own
+        if orphaned():
+            end_orphaned_job(err)  # the sweep was killed: nobody to raise to
         raise
+    if in_sweep and orphaned():
+        end_orphaned_job(None)
     return run_objective(summary.parent, OmegaConf.select(hydra_cfg, "sweeper.objective", default="headline"))
 
 

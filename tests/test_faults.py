@@ -257,7 +257,8 @@ def test_the_logs_grow_by_a_row_per_iteration_and_resume_cuts_them_line_by_line(
 
 
 def test_a_process_told_to_stop_with_its_parent_gets_sigterm_when_the_parent_dies(tmp_path):
-    """The watchdog of a multirun worker: the parent exits at once, the child is SIGTERMed."""
+    """The watchdog of a multirun worker: the parent exits at once, the child is SIGTERMed and
+    knows itself orphaned (it was not while the parent lived)."""
     import subprocess
     import sys
     import time
@@ -265,11 +266,11 @@ def test_a_process_told_to_stop_with_its_parent_gets_sigterm_when_the_parent_die
     marker, ready = tmp_path / "stopped", tmp_path / "ready"
     child = (
         "import signal, sys, time, pathlib\n"
-        "from roto_trl.trainers.interrupts import stop_with_parent\n"
-        f"stop = lambda *_: (pathlib.Path({str(marker)!r}).write_text('x'), sys.exit(0))\n"
+        "from roto_trl.trainers.interrupts import orphaned, stop_with_parent\n"
+        f"stop = lambda *_: (pathlib.Path({str(marker)!r}).write_text(str(orphaned())), sys.exit(0))\n"
         "signal.signal(signal.SIGTERM, stop)\n"
         "stop_with_parent(0.05)\n"
-        f"pathlib.Path({str(ready)!r}).write_text('x')\n"
+        f"pathlib.Path({str(ready)!r}).write_text(str(orphaned()))\n"
         "time.sleep(30)\n"
     )
     parent = (
@@ -281,7 +282,8 @@ def test_a_process_told_to_stop_with_its_parent_gets_sigterm_when_the_parent_die
     deadline = time.time() + 20
     while time.time() < deadline and not marker.exists():
         time.sleep(0.1)
-    assert marker.exists()
+    assert marker.exists() and marker.read_text() == "True"
+    assert ready.read_text() == "False"
 
 
 def test_evaluating_another_checkpoint_or_policy_leaves_eval_json_alone(finished_run):

@@ -1,6 +1,7 @@
 """Many runs at once: multiruns through Hydra's joblib and submitit launchers, each job with its
 own run directory and its share of the cores, and a job requeued by submitit resuming its run."""
 
+import contextlib
 import json
 import os
 import signal
@@ -171,3 +172,51 @@ def test_job_interrupted_by_its_time_limit_is_requeued_and_resumes(tmp_path):
     assert f"resuming {run_dir}" in logs
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["frames"] == 2560 and summary["iterations"] == 20
+
+
+def _children(pid: int) -> list[int]:
+    """The processes whose parent is ``pid``."""
+    found = []
+    for proc in Path("/proc").glob("[0-9]*"):
+        try:
+            if int((proc / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
+                found.append(int(proc.name))
+        except OSError:
+            continue
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.slow
+def test_a_killed_joblib_sweep_stops_its_job_and_leaves_no_worker_behind(tmp_path):
+    """SIGTERM to the sweep's own process: its worker's job finishes the iteration, writes its
+    checkpoint, releases the run, prints where it stopped, and the worker process ends."""
+    log = (tmp_path / "sweep.log").open("w")
+    command = [*TRAIN, "-m", *TINY, "total_frames=1000000", "seed=0", "hydra/launcher=joblib"]
+    proc = subprocess.Popen([*command, f"hydra.sweep.dir={tmp_path}"], stdout=log, stderr=log)
+    run_dir = tmp_path / "0-find_ppo-s0"
+    deadline = time.time() + 300
+    while time.time() < deadline and not (run_dir / "checkpoints" / "latest.pt").exists():
+        assert proc.poll() is None, (tmp_path / "sweep.log").read_text()[-3000:]
+        time.sleep(0.1)
+    worker = json.loads((run_dir / ".lock.owner").read_text())["pid"]  # the job's process
+    assert worker != proc.pid and _alive(worker)
+    others = [pid for pid in _children(proc.pid) if pid != worker]  # loky's trackers, an idle worker
+    proc.terminate()
+    proc.wait(timeout=60)
+    deadline = time.time() + 120
+    while time.time() < deadline and _alive(worker):
+        time.sleep(0.2)
+    output = (tmp_path / "sweep.log").read_text()
+    assert not _alive(worker), f"the job's worker stayed behind: {output[-3000:]}"
+    assert "train: stopped at" in output and f"resume={run_dir}" in output, output[-3000:]
+    assert not (run_dir / ".lock.owner").exists()
+    for pid in others:  # a worker that never had a job ends on loky's idle timeout (5 min): not waited for
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)

@@ -1,9 +1,12 @@
 """Errors a training run reports in one line instead of a traceback, with the exit status of each
-(``exit_with_report``), and the report of a multirun job that failed (``report_failed_job``)."""
+(``exit_with_report``), the report of a multirun job that failed (``report_failed_job``), and
+the end of a job whose launcher died (``end_orphaned_job``)."""
 
+import os
 import sys
 import traceback
 from pathlib import Path
+from typing import NoReturn
 
 
 class NonFiniteError(RuntimeError):
@@ -64,9 +67,9 @@ EXIT_STATUS: dict[type[BaseException], tuple[int, str]] = {
 }
 
 
-def exit_with_report(err: BaseException) -> None:
-    """End a single run stopped by ``err`` with its one-line report on stderr and its exit status;
-    an error that is not one of ours is raised again, traceback and all (a bug to report)."""
+def one_line_report(err: BaseException) -> tuple[int, str] | None:
+    """The exit status and one-line report of a run stopped by ``err``; None for an error that is
+    not one of ours (a bug, which keeps its traceback)."""
     if isinstance(err, TrainingInterrupted):
         resume = f"continue with: python roto_trl/train.py resume={err.run_dir}"
         what = (
@@ -74,16 +77,40 @@ def exit_with_report(err: BaseException) -> None:
             if err.frames
             else "stopped before the first checkpoint"
         )
-        print(f"train: {what}", file=sys.stderr)
-        sys.exit(128 + err.signum)
+        return 128 + err.signum, f"train: {what}"
     if isinstance(err, KeyboardInterrupt):  # before the loop's handlers were installed, or after it
-        print("train: interrupted", file=sys.stderr)
-        sys.exit(130)
+        return 130, "train: interrupted"
     for kind, (status, message) in EXIT_STATUS.items():
         if isinstance(err, kind):
-            print(f"train: {message.format(err=err)}", file=sys.stderr)
-            sys.exit(status)
-    raise err
+            return status, f"train: {message.format(err=err)}"
+    return None
+
+
+def exit_with_report(err: BaseException) -> None:
+    """End a single run stopped by ``err`` with its one-line report on stderr and its exit status;
+    an error that is not one of ours is raised again, traceback and all (a bug to report)."""
+    report = one_line_report(err)
+    if report is None:
+        raise err
+    status, line = report
+    print(line, file=sys.stderr)
+    sys.exit(status)
+
+
+def end_orphaned_job(err: BaseException | None) -> NoReturn:
+    """End the process of a multirun job whose launcher has died (``interrupts.orphaned``), after
+    its one-line report (``err`` None: the job finished). Returning or raising would send the
+    result to a launcher no longer there, and the worker would wait for it forever."""
+    if err is None:
+        status, line = 0, "train: finished; its launcher had stopped"
+    else:  # a bug has its traceback in error.txt already (report_failed_job)
+        status, line = one_line_report(err) or (1, f"train: failed: {type(err).__name__}")
+    try:
+        print(line, file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+    finally:
+        os._exit(status)  # not sys.exit: the worker's pool would catch it and wait on the parent
 
 
 def report_failed_job(cfg, err: BaseException) -> None:

@@ -44,7 +44,7 @@ class StopRequests:
             signal.signal(signum, handler)
 
 
-_WATCHING: set[int] = set()  # the processes whose parent is watched (one thread each)
+_PARENT: dict[int, int] = {}  # a process whose parent is watched -> that parent (one thread each)
 
 
 def stop_with_parent(poll_seconds: float = 2.0) -> None:
@@ -52,10 +52,9 @@ def stop_with_parent(poll_seconds: float = 2.0) -> None:
     job in training then stops as on SIGTERM, writing ``latest.pt``; an idle worker ends. A
     daemon thread, started once per process."""
     pid = os.getpid()
-    if pid in _WATCHING:
+    if pid in _PARENT:
         return
-    _WATCHING.add(pid)
-    parent = os.getppid()
+    parent = _PARENT[pid] = os.getppid()
 
     def watch() -> None:
         while os.getppid() == parent:
@@ -63,3 +62,10 @@ def stop_with_parent(poll_seconds: float = 2.0) -> None:
         os.kill(pid, signal.SIGTERM)
 
     threading.Thread(target=watch, name="stop-with-parent", daemon=True).start()
+
+
+def orphaned() -> bool:
+    """Whether this process watches its parent (``stop_with_parent``) and that parent has died:
+    whatever it would send back to the parent (a job's result or error) has nobody to read it."""
+    parent = _PARENT.get(os.getpid())
+    return parent is not None and os.getppid() != parent
