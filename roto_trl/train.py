@@ -252,7 +252,7 @@ def main(cfg: DictConfig) -> float:
         if orphaned():
             end_orphaned_job(err)  # the sweep was killed: nobody to raise to
         raise
-    if in_sweep and orphaned():
+    if orphaned():  # only a multirun's job watches its parent
         end_orphaned_job(None)
     return run_objective(summary.parent, OmegaConf.select(hydra_cfg, "sweeper.objective", default="headline"))
 

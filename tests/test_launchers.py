@@ -174,23 +174,24 @@ def test_job_interrupted_by_its_time_limit_is_requeued_and_resumes(tmp_path):
     assert summary["frames"] == 2560 and summary["iterations"] == 20
 
 
+def _state_and_parent(pid: int | str) -> tuple[str, int] | None:
+    """A process's state letter and parent pid from ``/proc/<pid>/stat``; None once it is gone."""
+    try:
+        state, ppid = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[:2]
+    except OSError:
+        return None
+    return state, int(ppid)
+
+
 def _children(pid: int) -> list[int]:
     """The processes whose parent is ``pid``."""
-    found = []
-    for proc in Path("/proc").glob("[0-9]*"):
-        try:
-            if int((proc / "stat").read_text().rsplit(")", 1)[1].split()[1]) == pid:
-                found.append(int(proc.name))
-        except OSError:
-            continue
-    return found
+    procs = Path("/proc").glob("[0-9]*")
+    return [int(p.name) for p in procs if (_state_and_parent(p.name) or ("", 0))[1] == pid]
 
 
 def _alive(pid: int) -> bool:
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
+    """Running, not a zombie waiting to be reaped."""
+    return (_state_and_parent(pid) or ("Z", 0))[0] != "Z"
 
 
 @pytest.mark.slow
